@@ -1,0 +1,141 @@
+"""`lwm`: the project's command line.
+
+    lwm data splits [--seed N] [--out FILE]
+    lwm data generate --out DIR [--text-source generated|PATH ...] [--seed N] [--episodes-per-game N]
+    lwm play [--split S] [--index I] ...
+
+Errors in the user's input exit with status 2 and a one-line message, not a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from ..errors import LwmError
+from ..messenger.constants import DEFAULT_MAX_STEPS, SPLITS
+
+
+def _cmd_splits(args: argparse.Namespace) -> int:
+    from ..data.splits import SPLIT_SIZES, make_splits
+
+    splits = make_splits(args.seed)
+    counts = splits.counts()
+    width = max(map(len, counts))
+    print(f"game splits (seed {args.seed})")
+    for name, n in counts.items():
+        mark = "ok" if n == SPLIT_SIZES[name] else f"expected {SPLIT_SIZES[name]}"
+        print(f"  {name:<{width}}  {n:>5}  {mark}")
+    if args.out:
+        splits.save(args.out)
+        print(f"written to {args.out}")
+    return 0
+
+
+def load_pools(text_source: list[str], seed: int, typo_rate: float = 0.0):
+    """Description pools from 'generated' or from human-written description files."""
+    from ..text import DescriptionPools
+
+    if text_source == ["generated"]:
+        return DescriptionPools.generated(seed=seed, typo_rate=typo_rate), "generated"
+    return DescriptionPools.from_files(text_source, seed=seed), ",".join(text_source)
+
+
+def _cmd_generate(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from ..data.dataset import generate_dataset
+
+    pools, source = load_pools(args.text_source, args.seed, args.typo_rate)
+    if getattr(pools, "fallback_count", 0):
+        print(
+            f"note: {pools.fallback_count} (split, triple) pools had no human-written description "
+            "and use generated ones",
+            file=sys.stderr,
+        )
+    bar: tqdm | None = None
+
+    def factory(total: int):
+        nonlocal bar
+        bar = tqdm(total=total, unit="ep", desc="episodes", disable=args.no_progress)
+        return bar.update
+
+    index = generate_dataset(
+        args.out,
+        pools,
+        seed=args.seed,
+        split_seed=args.split_seed,
+        train_episodes_per_game=args.episodes_per_game,
+        max_games=args.max_games,
+        max_steps=args.max_steps,
+        text_source=source,
+        progress_factory=factory,
+    )
+    if bar is not None:
+        bar.close()
+    summary = {k: {"episodes": v["episodes"], "observations": v["observations"]} for k, v in index["splits"].items()}
+    print(json.dumps({"out": str(args.out), "seconds": index["seconds"], "splits": summary}, indent=2))
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="lwm", description="Language-guided world models on Messenger-WM.")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    data = sub.add_parser("data", help="the Messenger-WM benchmark: game splits and trajectories")
+    data_sub = data.add_subparsers(dest="data_command", required=True)
+
+    p = data_sub.add_parser("splits", help="generate the game splits and print their counts")
+    p.add_argument("--seed", type=int, default=0, help="seed of the split generator")
+    p.add_argument("--out", type=Path, default=None, help="also write the splits to this JSON file")
+    p.set_defaults(func=_cmd_splits)
+
+    p = data_sub.add_parser("generate", help="generate the trajectory dataset")
+    p.add_argument("--out", type=Path, required=True, help="output directory")
+    p.add_argument(
+        "--text-source",
+        nargs="+",
+        default=["generated"],
+        help="'generated' (the project's own descriptions) or human-written description JSON file(s)",
+    )
+    p.add_argument("--seed", type=int, default=0, help="seed of episodes, policies and manuals")
+    p.add_argument("--split-seed", type=int, default=0, help="seed of the game splits")
+    p.add_argument("--episodes-per-game", type=int, default=66, help="training episodes per training game")
+    p.add_argument("--max-games", type=int, default=None, help="keep only the first N games of each split")
+    p.add_argument("--max-steps", type=int, default=DEFAULT_MAX_STEPS, help="time limit in actions")
+    p.add_argument("--typo-rate", type=float, default=0.0, help="typo rate of generated descriptions")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(func=_cmd_generate)
+
+    p = sub.add_parser("play", help="play a Messenger game in the terminal", add_help=False)
+    p.add_argument("rest", nargs=argparse.REMAINDER)
+    p.set_defaults(func=lambda a: _play(a.rest))
+    return parser
+
+
+def _play(rest: list[str]) -> int:
+    from .play import play_main
+
+    return play_main(rest)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    for name in ("episodes_per_game", "max_games", "max_steps"):
+        value = getattr(args, name, None)
+        if value is not None and value < 1:
+            parser.error(f"--{name.replace('_', '-')} must be >= 1, got {value}")
+    try:
+        return int(args.func(args) or 0)
+    except (LwmError, OSError) as exc:
+        print(f"lwm: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

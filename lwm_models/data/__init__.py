@@ -1,0 +1,1 @@
+"""Benchmark data: game splits and the trajectory dataset."""
