@@ -1,0 +1,1 @@
+"""World models: tokenizer, EMMA-LWM and baselines, training, evaluation and imagination."""

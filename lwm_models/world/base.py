@@ -1,0 +1,217 @@
+"""What every world-model family shares: token embeddings, the causal decoder, the output heads and
+the training loss. A family only decides how the manual conditions the decoder (`condition`):
+
+- an `id_table` [B, 17, H] whose row i is added to the embedding of every entity-channel id token
+  equal to i (EMMA-LWM, OracleParse, GPTHard; Observational has none), and/or
+- a `memory` [B, M, H] of description tokens that every block cross-attends to (Standard).
+
+Because the additions depend only on the token's value, the table is computed once per manual and
+gathered at each id token, in training and in imagination alike.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from ..messenger.constants import NUM_IDS
+from .gpt import Block, DecoderConfig, KVCache, head, init_weights
+from .tokens import (
+    ACTION_VOCAB,
+    BLOCK,
+    DONE_VOCAB,
+    ID_SLOTS,
+    MAX_BLOCKS,
+    OBS_TOKENS,
+    OBS_VOCAB,
+    REWARD_VOCAB,
+    SLOT_ACTION,
+    SLOT_DONE,
+    SLOT_KIND,
+    SLOT_OBS,
+    SLOT_REWARD,
+)
+
+# One embedding matrix holds the four slot kinds' tables in disjoint row ranges, which is the same
+# as four separate tables and embeds a whole sequence with one lookup.
+_SLOT_OFFSET = np.array([0, ACTION_VOCAB, ACTION_VOCAB + OBS_VOCAB, ACTION_VOCAB + OBS_VOCAB + REWARD_VOCAB])
+_EMBED_ROWS = ACTION_VOCAB + OBS_VOCAB + REWARD_VOCAB + DONE_VOCAB
+MAX_LEN = MAX_BLOCKS * BLOCK
+# Which of n new tokens starting at block offset o are entity id tokens: looked up at every
+# imagination step, so precomputed for the short calls.
+_ID_COLUMNS = {
+    (o, n): torch.as_tensor(np.flatnonzero(np.isin((o + np.arange(n)) % BLOCK, ID_SLOTS)))
+    for o in range(BLOCK)
+    for n in range(1, BLOCK + 1)
+}
+
+
+@dataclass
+class ManualBatch:
+    """The manuals of a batch, in the forms the families need.
+
+    features: [B, 3, T, F] frozen text-encoder token vectors of each description.
+    mask: [B, 3, T] True at real (non-padding) tokens.
+    parse: [B, 3, 3] long, per description the true (identity id, movement index, role index).
+    routed: [B, 3] long, per description the identity id an external parser assigned (GPTHard).
+    """
+
+    features: torch.Tensor | None = None
+    mask: torch.Tensor | None = None
+    parse: torch.Tensor | None = None
+    routed: torch.Tensor | None = None
+
+    def index(self, idx: torch.Tensor) -> "ManualBatch":
+        return ManualBatch(*(None if t is None else t[idx] for t in (self.features, self.mask, self.parse, self.routed)))
+
+
+@dataclass
+class Conditioning:
+    id_table: torch.Tensor | None = None  # [B, 17, H]
+    memory: torch.Tensor | None = None  # [B, M, H]
+    memory_mask: torch.Tensor | None = None  # [B, M] True at real tokens
+
+    def index(self, idx: torch.Tensor) -> "Conditioning":
+        return Conditioning(*(None if t is None else t[idx] for t in (self.id_table, self.memory, self.memory_mask)))
+
+
+@dataclass
+class LossOutput:
+    loss: torch.Tensor  # total = obs + reward + done (means over their valid tokens)
+    obs: torch.Tensor
+    reward: torch.Tensor
+    done: torch.Tensor
+    sums: dict[str, torch.Tensor]  # summed cross-entropy per kind, for exact dataset averages
+    counts: dict[str, torch.Tensor]
+
+
+def _targets_layout(length: int) -> dict[int, np.ndarray]:
+    """Positions (into a sequence of `length` tokens) whose *next* token each head predicts; the
+    first block is context only."""
+    nxt = np.arange(BLOCK, length)
+    kind = SLOT_KIND[nxt % BLOCK]
+    return {k: nxt[kind == k] - 1 for k in (SLOT_OBS, SLOT_REWARD, SLOT_DONE)}
+
+
+class WorldModel(nn.Module):
+    """Base class: subclasses set `kind` and implement `condition(manual)`."""
+
+    kind = "base"
+
+    def __init__(self, decoder: DecoderConfig) -> None:
+        super().__init__()
+        self.decoder_config = decoder
+        h = decoder.hidden
+        self.tok_emb = nn.Embedding(_EMBED_ROWS, h)
+        self.pos_emb = nn.Embedding(MAX_LEN, h)
+        self.drop = nn.Dropout(decoder.dropout)
+        self.blocks = nn.ModuleList(Block(decoder) for _ in range(decoder.layers))
+        self.ln_f = nn.LayerNorm(h)
+        self.obs_head = head(h, OBS_VOCAB)
+        self.reward_head = head(h, REWARD_VOCAB)
+        self.done_head = head(h, DONE_VOCAB)
+        self.register_buffer("_slot_offset", torch.as_tensor(_SLOT_OFFSET[SLOT_KIND]), persistent=False)
+
+    def _init(self) -> None:
+        self.apply(init_weights)
+
+    # ------------------------------------------------------------------ conditioning
+    def condition(self, manual: ManualBatch) -> Conditioning:
+        raise NotImplementedError
+
+    def obs_embedding(self, ids: torch.Tensor) -> torch.Tensor:
+        """Embedding of observation tokens (used by EMMA to query the manual with id tokens)."""
+        return self.tok_emb(ids + ACTION_VOCAB)
+
+    # ------------------------------------------------------------------ decoder
+    def embed(self, tokens: torch.Tensor, start: int, cond: Conditioning) -> torch.Tensor:
+        """Token + position embeddings of tokens[:, i] at absolute position start + i."""
+        b, n = tokens.shape
+        pos = torch.arange(start, start + n, device=tokens.device)
+        x = self.tok_emb(tokens + self._slot_offset[pos % BLOCK])
+        if cond.id_table is not None:
+            cols = _ID_COLUMNS[(start % BLOCK, n)] if n <= BLOCK else torch.as_tensor(
+                np.flatnonzero(np.isin(np.arange(start, start + n) % BLOCK, ID_SLOTS))
+            )
+            if len(cols):
+                ids = tokens[:, cols].clamp(0, NUM_IDS - 1)
+                add = torch.gather(cond.id_table, 1, ids.unsqueeze(-1).expand(-1, -1, x.shape[-1]))
+                x[:, cols] = x[:, cols] + add * (ids > 0).unsqueeze(-1).to(add.dtype)
+        return self.drop(x + self.pos_emb(pos))
+
+    def hidden_states(
+        self, tokens: torch.Tensor, cond: Conditioning, cache: KVCache | None = None
+    ) -> torch.Tensor:
+        start = 0 if cache is None else cache.length
+        x = self.embed(tokens, start, cond)
+        memory_kv = self._memory_kv(cond, cache)
+        for i, block in enumerate(self.blocks):
+            x = block(x, cache, i, memory_kv[i] if memory_kv else None, cond.memory_mask)
+        if cache is not None:
+            cache.length += tokens.shape[1]
+        return self.ln_f(x)
+
+    def _memory_kv(self, cond: Conditioning, cache: KVCache | None):
+        if cond.memory is None:
+            return None
+        if cache is not None and cache.memory_kv is not None:
+            return cache.memory_kv
+        kv = [block.cross.memory_kv(cond.memory) for block in self.blocks]
+        if cache is not None:
+            cache.memory_kv = kv
+        return kv
+
+    def new_cache(self, batch: int, max_len: int = MAX_LEN) -> KVCache:
+        p = next(self.parameters())
+        cfg = self.decoder_config
+        return KVCache(cfg.layers, batch, cfg.heads, cfg.hidden // cfg.heads, max_len, p.dtype, p.device)
+
+    def next_token_logits(self, h: torch.Tensor, next_position: int) -> torch.Tensor:
+        """Logits for the token at absolute `next_position`, from the hidden state before it."""
+        kind = SLOT_KIND[next_position % BLOCK]
+        if kind == SLOT_OBS:
+            return self.obs_head(h)
+        if kind == SLOT_REWARD:
+            return self.reward_head(h)
+        if kind == SLOT_DONE:
+            return self.done_head(h)
+        raise ValueError(f"position {next_position} holds an action: the model does not predict it")
+
+    # ------------------------------------------------------------------ training
+    def forward(self, tokens: torch.Tensor, lengths: torch.Tensor, manual: ManualBatch) -> LossOutput:
+        """Teacher-forced losses on a batch of token sequences.
+
+        tokens: [B, L] blocks of 15 tokens, right-padded; lengths: [B] valid blocks per sequence.
+        Returns the mean cross-entropy of observation, reward and done tokens (first block is
+        context only, padding masked) and their total.
+        """
+        b, n = tokens.shape
+        if n % BLOCK or n > MAX_LEN:
+            raise ValueError(f"sequence length {n} must be a multiple of {BLOCK} and at most {MAX_LEN}")
+        h = self.hidden_states(tokens, self.condition(manual))
+        layout = _targets_layout(n)
+        valid_tokens = lengths.to(tokens.device)[:, None] * BLOCK  # target positions < this are real
+        sums, counts, means = {}, {}, {}
+        for name, kind, head_ in (
+            ("obs", SLOT_OBS, self.obs_head),
+            ("reward", SLOT_REWARD, self.reward_head),
+            ("done", SLOT_DONE, self.done_head),
+        ):
+            pos = torch.as_tensor(layout[kind], device=tokens.device)
+            logits = head_(h[:, pos]).float()
+            target = tokens[:, pos + 1]
+            mask = (pos + 1)[None, :] < valid_tokens
+            ce = F.cross_entropy(logits.transpose(1, 2), target, reduction="none")
+            sums[name] = (ce * mask).sum()
+            counts[name] = mask.sum()
+            means[name] = sums[name] / counts[name].clamp(min=1)
+        total = means["obs"] + means["reward"] + means["done"]
+        return LossOutput(total, means["obs"], means["reward"], means["done"], sums, counts)
+
+
+OBS_POSITIONS_IN_BLOCK = np.arange(1, 1 + OBS_TOKENS)
+__all__ = ["WorldModel", "ManualBatch", "Conditioning", "LossOutput", "MAX_LEN", "SLOT_ACTION"]

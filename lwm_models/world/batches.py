@@ -1,0 +1,117 @@
+"""Token batches from a Messenger-WM dataset split, for training and teacher-forced evaluation.
+
+At load time every observation of the split becomes a 15-token block (a few seconds for the
+training split) and every distinct description is encoded once by the frozen text encoder, so a
+batch is only slicing and stacking.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Callable, Iterator
+
+import numpy as np
+import torch
+
+from ..data.dataset import TrajectoryDataset
+from ..messenger.constants import ALL_TRIPLES, IDENTITIES, MOVEMENTS, ROLES
+from .base import ManualBatch
+from .frozen_text import FrozenTextEncoder
+from .tokens import BLOCK, DUMMY_ACTION, FIRST_REWARD_LABEL, OBS_TOKENS, obs_to_tokens, reward_label
+
+# (identity id, movement index, role index) of each triple index: the OracleParse input.
+TRIPLE_CODES = np.array(
+    [(IDENTITIES[i], MOVEMENTS.index(m), ROLES.index(r)) for i, m, r in ALL_TRIPLES], dtype=np.int64
+)
+
+
+def dataset_blocks(ds: TrajectoryDataset) -> np.ndarray:
+    """[S, 15] uint8 token blocks of every observation of the split, episode starts carrying the
+    dummy action, reward label 2 and done 0."""
+    blocks = np.empty((len(ds.observations), BLOCK), dtype=np.uint8)
+    blocks[:, 0] = ds.actions
+    blocks[:, 1 : 1 + OBS_TOKENS] = obs_to_tokens(np.asarray(ds.observations))
+    blocks[:, -2] = reward_label(np.asarray(ds.rewards))
+    blocks[:, -1] = ds.dones
+    firsts = np.asarray(ds.episode_offsets[:-1])
+    blocks[firsts, 0] = DUMMY_ACTION
+    blocks[firsts, -2] = FIRST_REWARD_LABEL
+    blocks[firsts, -1] = 0
+    return blocks
+
+
+class SplitTokens:
+    """A dataset split ready for the world models.
+
+    Args:
+        root: dataset directory (from `lwm data generate`).
+        split: split name.
+        encoder: frozen text encoder; None skips text (Observational, OracleParse).
+        router: maps a description to an identity id (GPTHard's parser); None skips routing.
+    """
+
+    def __init__(
+        self,
+        root: str | Path,
+        split: str,
+        encoder: FrozenTextEncoder | None = None,
+        router: Callable[[str], int] | None = None,
+    ) -> None:
+        self.ds = TrajectoryDataset(root, split)
+        self.split = split
+        self.blocks = dataset_blocks(self.ds)
+        self.offsets = np.asarray(self.ds.episode_offsets)
+        self.lengths = np.diff(self.offsets)
+        self.manuals = np.asarray(self.ds.manuals, dtype=np.int64)
+        self.parse_codes = TRIPLE_CODES[np.asarray(self.ds.parses, dtype=np.int64)]  # [E, 3, 3]
+        self.features = self.text_lengths = None
+        if encoder is not None:
+            feats, lengths = encoder.encode_arrays(self.ds.texts)
+            self.features = torch.from_numpy(feats)  # [num_texts, T, F] float16
+            self.text_lengths = torch.from_numpy(lengths)
+        self.routed = None
+        if router is not None:
+            self.routed = np.array([router(t) for t in self.ds.texts], dtype=np.int64)
+
+    def __len__(self) -> int:
+        return len(self.lengths)
+
+    def manual_batch(self, episodes: np.ndarray) -> ManualBatch:
+        text_ids = self.manuals[episodes]  # [B, 3]
+        features = mask = routed = None
+        if self.features is not None:
+            idx = torch.from_numpy(text_ids)
+            features = self.features[idx].float()  # [B, 3, T, F]
+            mask = torch.arange(features.shape[2])[None, None, :] < self.text_lengths[idx][..., None]
+        if self.routed is not None:
+            routed = torch.from_numpy(self.routed[text_ids])
+        return ManualBatch(features, mask, torch.from_numpy(self.parse_codes[episodes]), routed)
+
+    def segments(self, episodes: np.ndarray, starts: np.ndarray) -> tuple[torch.Tensor, torch.Tensor]:
+        """Tokens [B, 15 * max_blocks] of the segments episode[start:] (padded with 0) and their
+        lengths in blocks."""
+        lengths = self.lengths[episodes] - starts
+        width = int(lengths.max())
+        out = np.zeros((len(episodes), width, BLOCK), dtype=np.int64)
+        for i, (e, s, n) in enumerate(zip(episodes, starts, lengths)):
+            lo = self.offsets[e] + s
+            out[i, :n] = self.blocks[lo : lo + n]
+        return torch.from_numpy(out.reshape(len(episodes), width * BLOCK)), torch.from_numpy(lengths)
+
+    def sample(self, rng: np.random.Generator, batch: int) -> tuple[torch.Tensor, torch.Tensor, ManualBatch]:
+        """Segments that start at a random step (leaving at least one block to predict) of random
+        episodes: the paper's training batches."""
+        episodes = rng.integers(len(self), size=batch)
+        starts = (rng.random(batch) * (self.lengths[episodes] - 1)).astype(np.int64)
+        tokens, lengths = self.segments(episodes, starts)
+        return tokens, lengths, self.manual_batch(episodes)
+
+    def full_episodes(self, batch: int, limit: int | None = None) -> Iterator[tuple[torch.Tensor, torch.Tensor, ManualBatch]]:
+        """Whole episodes in order, for evaluation; `limit` keeps an evenly spaced subset."""
+        episodes = np.arange(len(self))
+        if limit is not None and limit < len(episodes):
+            episodes = np.linspace(0, len(episodes) - 1, limit).round().astype(np.int64)
+        for lo in range(0, len(episodes), batch):
+            chunk = episodes[lo : lo + batch]
+            tokens, lengths = self.segments(chunk, np.zeros(len(chunk), dtype=np.int64))
+            yield tokens, lengths, self.manual_batch(chunk)

@@ -1,0 +1,37 @@
+"""GPTHard: descriptions routed to entities by an external parser's identity guess.
+
+The paper asked ChatGPT which entity each description is about; here the router is the project's
+own offline parser (lwm_models.text.parser), whose guesses arrive as `manual.routed` (an identity
+id per description, 0 when the parser has no guess). Each description's pooled value is added to
+the id token of the identity it was routed to (summed if two are routed to the same one).
+"""
+
+from __future__ import annotations
+
+import torch
+
+from ..messenger.constants import NUM_IDS
+from .base import Conditioning, ManualBatch, WorldModel
+from .description_encoder import AttentionPool, DescriptionEncoder
+from .emma import EmmaConfig
+
+
+class GPTHardLWM(WorldModel):
+    kind = "gpthard"
+
+    def __init__(self, config: EmmaConfig) -> None:
+        super().__init__(config.decoder)
+        self.config = config
+        h = config.decoder.hidden
+        self.text_encoder = DescriptionEncoder(config.text, h, config.decoder.dropout)
+        self.value_pool = AttentionPool(h)
+        self._init()
+
+    def condition(self, manual: ManualBatch) -> Conditioning:
+        if manual.features is None or manual.routed is None:
+            raise ValueError("GPTHard needs the encoded descriptions and the parser's routing")
+        values = self.value_pool(self.text_encoder(manual.features, manual.mask), manual.mask)  # [B, 3, H]
+        table = torch.zeros(values.shape[0], NUM_IDS, values.shape[-1], dtype=values.dtype, device=values.device)
+        table.scatter_add_(1, manual.routed.clamp(0, NUM_IDS - 1).unsqueeze(-1).expand_as(values), values)
+        table[:, 0] = 0  # unrouted descriptions condition nothing
+        return Conditioning(id_table=table)

@@ -1,0 +1,194 @@
+"""Imagination: batched, KV-cached sampling of trajectories from a world model.
+
+Start from a real first observation and its manual, feed actions (a fixed sequence, or a policy
+called on the imagined observations), and sample each next block's 12 observation tokens, reward
+and done token (categorical, temperature 1 by default) until done or the time limit. A trajectory
+that has ended is dropped from the batch (and from the KV cache), so the batch shrinks as
+episodes finish.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+import torch
+
+from ..errors import ShapeError
+from ..messenger.constants import DEFAULT_MAX_STEPS, NUM_ACTIONS, NUM_CHANNELS
+from .base import ManualBatch, WorldModel
+from .tokens import (
+    BLOCK,
+    DUMMY_ACTION,
+    FIRST_REWARD_LABEL,
+    OBS_TOKENS,
+    REWARD_VALUES,
+    obs_to_tokens,
+    tokens_to_obs,
+)
+
+Policy = Callable[[np.ndarray, np.ndarray, int], np.ndarray]
+"""policy(observations [n, t, 4, 3] so far (compact), trajectory indices [n], step t) -> actions [n]."""
+
+
+@dataclass
+class Imagination:
+    """N imagined trajectories, padded to max_steps + 1 observations (index 0 is the real one).
+
+    `token_probs[:, t]` holds the probability of each of block t's 14 sampled tokens (12
+    observation tokens, reward, done): the model's confidence in what it imagined.
+    """
+
+    observations: np.ndarray  # [N, T + 1, 4, 3] uint8
+    actions: np.ndarray  # [N, T + 1] (0 at index 0)
+    rewards: np.ndarray  # [N, T + 1] float32
+    dones: np.ndarray  # [N, T + 1] bool
+    lengths: np.ndarray  # [N] observations per trajectory
+    token_probs: np.ndarray  # [N, T + 1, 14] float32
+
+    @property
+    def returns(self) -> np.ndarray:
+        return self.rewards.sum(1)
+
+    def confidence(self) -> np.ndarray:
+        """[N, T + 1] per-step confidence: the product of the step's token probabilities."""
+        return np.where(self.token_probs > 0, self.token_probs, 1.0).prod(-1)
+
+
+def _check_inputs(first_obs: np.ndarray, n: int) -> np.ndarray:
+    first = np.asarray(first_obs)
+    if first.shape == (NUM_CHANNELS, 3):
+        first = np.broadcast_to(first, (n, NUM_CHANNELS, 3))
+    if first.shape != (n, NUM_CHANNELS, 3):
+        raise ShapeError(f"first observation must be compact (4, 3) or ({n}, 4, 3), got {first.shape}")
+    return first
+
+
+@torch.no_grad()
+def imagine(
+    model: WorldModel,
+    manual: ManualBatch,
+    first_obs: np.ndarray,
+    n: int = 1,
+    actions: np.ndarray | None = None,
+    policy: Policy | None = None,
+    max_steps: int = DEFAULT_MAX_STEPS,
+    temperature: float = 1.0,
+    seed: int | None = None,
+    use_cache: bool = True,
+    stop_on_done: bool = True,
+) -> Imagination:
+    """Imagine `n` trajectories.
+
+    manual: the manual of every trajectory (batch 1, broadcast) or one per trajectory (batch n).
+    first_obs: compact first observation (4, 3), or one per trajectory (n, 4, 3).
+    actions: [n, max_steps] or [max_steps] actions to replay, or None with a `policy`.
+    use_cache: False recomputes the whole prefix at every token (for the speed benchmark only).
+    stop_on_done: False keeps imagining past a sampled done (benchmarks use it for full-length
+        trajectories).
+    """
+    if (actions is None) == (policy is None):
+        raise ValueError("give either an action sequence or a policy")
+    if max_steps < 1:
+        raise ValueError(f"max_steps must be >= 1, got {max_steps}")
+    first = _check_inputs(first_obs, n)
+    if actions is not None:
+        actions = np.asarray(actions)
+        if actions.ndim == 1:
+            actions = np.broadcast_to(actions, (n, actions.shape[0]))
+        if actions.shape[0] != n or actions.shape[1] < max_steps:
+            raise ShapeError(f"actions must be [{n}, >= {max_steps}], got {actions.shape}")
+        if ((actions < 0) | (actions >= NUM_ACTIONS)).any():
+            raise ValueError(f"actions must be in 0..{NUM_ACTIONS - 1}")
+    if temperature <= 0:
+        raise ValueError("temperature must be > 0")
+    gen = torch.Generator().manual_seed(seed if seed is not None else int(torch.randint(2**31, ()).item()))
+    model.eval()
+
+    cond = model.condition(manual)
+    batch_of_manual = next(t for t in (cond.id_table, cond.memory) if t is not None).shape[0] if (
+        cond.id_table is not None or cond.memory is not None) else n
+    if batch_of_manual not in (1, n):
+        raise ShapeError(f"manual batch must be 1 or {n}, got {batch_of_manual}")
+    if batch_of_manual == 1 and n > 1:
+        cond = cond.index(torch.zeros(n, dtype=torch.long))
+
+    steps = max_steps + 1
+    obs_out = np.zeros((n, steps, NUM_CHANNELS, 3), dtype=np.uint8)
+    act_out = np.zeros((n, steps), dtype=np.int64)
+    rew_out = np.zeros((n, steps), dtype=np.float32)
+    done_out = np.zeros((n, steps), dtype=bool)
+    prob_out = np.zeros((n, steps, OBS_TOKENS + 2), dtype=np.float32)
+    lengths = np.ones(n, dtype=np.int64)
+    obs_out[:, 0] = first
+
+    first_block = np.zeros((n, BLOCK), dtype=np.int64)
+    first_block[:, 0] = DUMMY_ACTION
+    first_block[:, 1 : 1 + OBS_TOKENS] = obs_to_tokens(first)
+    first_block[:, -2] = FIRST_REWARD_LABEL
+    history = torch.from_numpy(first_block)  # all tokens so far (for the no-cache path)
+    active = np.arange(n)
+    cache = model.new_cache(n) if use_cache else None
+
+    def run(new_tokens: torch.Tensor) -> torch.Tensor:
+        """Feed tokens; the last hidden state predicts the next token."""
+        nonlocal history
+        if use_cache:
+            return model.hidden_states(new_tokens, cond_active, cache)[:, -1]
+        history = torch.cat([history, new_tokens], dim=1) if history.shape[1] else new_tokens
+        return model.hidden_states(history, cond_active)[:, -1]
+
+    def sample(h: torch.Tensor, position: int) -> tuple[torch.Tensor, torch.Tensor]:
+        probs = torch.softmax(model.next_token_logits(h, position).float() / temperature, dim=-1)
+        token = torch.multinomial(probs, 1, generator=gen).squeeze(1)
+        return token, probs.gather(1, token[:, None]).squeeze(1)
+
+    cond_active = cond
+    if use_cache:
+        model.hidden_states(history, cond_active, cache)
+    else:
+        history = torch.from_numpy(first_block)
+    pending = None  # the last block's done token, fed together with the next action
+    for t in range(1, steps):
+        if policy is not None:
+            act = np.asarray(policy(obs_out[active, :t], active, t), dtype=np.int64)
+            if act.shape != (len(active),) or ((act < 0) | (act >= NUM_ACTIONS)).any():
+                raise ValueError(f"the policy must return {len(active)} actions in 0..{NUM_ACTIONS - 1}")
+        else:
+            act = actions[active, t - 1].astype(np.int64)
+        act_out[active, t] = act
+        base = t * BLOCK
+        new = torch.from_numpy(act)[:, None]
+        if pending is not None:
+            new = torch.cat([pending[:, None], new], dim=1)
+        h = run(new)
+        block_tokens = []
+        probs = []
+        for k in range(OBS_TOKENS + 2):
+            token, p = sample(h, base + 1 + k)
+            block_tokens.append(token)
+            probs.append(p)
+            if k < OBS_TOKENS + 1:
+                h = run(token[:, None])
+        block = torch.stack(block_tokens, 1).numpy()
+        obs_out[active, t] = tokens_to_obs(block[:, :OBS_TOKENS])
+        rew_out[active, t] = REWARD_VALUES[block[:, OBS_TOKENS]]
+        done = block[:, OBS_TOKENS + 1] == 1
+        done_out[active, t] = done
+        prob_out[active, t] = torch.stack(probs, 1).numpy()
+        lengths[active] += 1
+        pending = torch.from_numpy(block[:, OBS_TOKENS + 1])
+        keep = ~done if stop_on_done else np.ones_like(done)
+        if not keep.any():
+            break
+        if not keep.all():
+            idx = torch.from_numpy(np.flatnonzero(keep))
+            active = active[keep]
+            cond_active = cond_active.index(idx)
+            pending = pending[idx]
+            if use_cache:
+                cache.select(idx)
+            else:
+                history = history[idx]
+    return Imagination(obs_out, act_out, rew_out, done_out, lengths, prob_out)

@@ -1,0 +1,91 @@
+"""The world models' tokenizer (§3): a step is a block of 15 tokens,
+
+    [action that led here, 12 observation tokens, reward label, done label]
+
+with, per observation channel, an id token (0..16), a row token (17 + row) and a column token
+(27 + column); an empty channel is (0, 17, 27). Each slot kind has its own vocabulary and its own
+embedding table in the models, so the action, reward and done tokens are small integers.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import ShapeError
+from ..messenger.constants import GRID, NUM_ACTIONS, NUM_CHANNELS, NUM_IDS
+
+ROW_OFFSET = NUM_IDS  # 17
+COL_OFFSET = NUM_IDS + GRID  # 27
+OBS_VOCAB = NUM_IDS + 2 * GRID  # 37
+OBS_TOKENS = 3 * NUM_CHANNELS  # 12
+BLOCK = OBS_TOKENS + 3  # 15
+ACTION_VOCAB = NUM_ACTIONS + 1  # 5 actions and the dummy of an episode's first block
+DUMMY_ACTION = NUM_ACTIONS
+REWARD_VOCAB = 5
+DONE_VOCAB = 2
+REWARD_VALUES = np.array([-1.0, -0.5, 0.0, 0.5, 1.0], dtype=np.float32)
+"""Reward label k means reward REWARD_VALUES[k] (label = (r + 1) * 2; -0.5 never occurs)."""
+FIRST_REWARD_LABEL = 2
+"""The first block's reward label: 2 (reward 0), as in training (the original imagined with 0)."""
+MAX_BLOCKS = 33
+
+# Slot kinds within a block.
+SLOT_ACTION, SLOT_OBS, SLOT_REWARD, SLOT_DONE = 0, 1, 2, 3
+SLOT_KIND = np.array([SLOT_ACTION] + [SLOT_OBS] * OBS_TOKENS + [SLOT_REWARD, SLOT_DONE], dtype=np.int64)
+ID_SLOTS = np.array([1 + 3 * c for c in range(NUM_CHANNELS - 1)], dtype=np.int64)
+"""Positions (within a block) of the entity channels' id tokens: EMMA conditions these."""
+
+
+def reward_label(reward: np.ndarray | float) -> np.ndarray:
+    """(r + 1) * 2: -1 -> 0, 0 -> 2, 0.5 -> 3, 1 -> 4."""
+    labels = np.rint((np.asarray(reward, dtype=np.float64) + 1.0) * 2.0).astype(np.int64)
+    if ((labels < 0) | (labels >= REWARD_VOCAB)).any():
+        raise ValueError(f"rewards must lie in [-1, 1], got {np.asarray(reward)}")
+    return labels
+
+
+def obs_to_tokens(compact: np.ndarray) -> np.ndarray:
+    """Compact observations [..., 4, 3] (id, row, col) -> [..., 12] observation tokens."""
+    compact = np.asarray(compact)
+    if compact.shape[-2:] != (NUM_CHANNELS, 3):
+        raise ShapeError(f"compact observations end in ({NUM_CHANNELS}, 3), got {compact.shape}")
+    c = compact.astype(np.int64)
+    tokens = np.stack([c[..., 0], ROW_OFFSET + c[..., 1], COL_OFFSET + c[..., 2]], axis=-1)
+    return tokens.reshape(*compact.shape[:-2], OBS_TOKENS)
+
+
+def tokens_to_obs(tokens: np.ndarray) -> np.ndarray:
+    """[..., 12] observation tokens -> compact observations [..., 4, 3].
+
+    Tokens out of their slot's range (a model can sample a row token where an id belongs) are
+    clipped into range; an id of 0 empties the channel whatever its row and column say.
+    """
+    tokens = np.asarray(tokens, dtype=np.int64)
+    if tokens.shape[-1] != OBS_TOKENS:
+        raise ShapeError(f"observation tokens end in {OBS_TOKENS}, got {tokens.shape}")
+    t = tokens.reshape(*tokens.shape[:-1], NUM_CHANNELS, 3)
+    ids = np.where((t[..., 0] >= 0) & (t[..., 0] < NUM_IDS), t[..., 0], 0)
+    rows = np.clip(t[..., 1] - ROW_OFFSET, 0, GRID - 1)
+    cols = np.clip(t[..., 2] - COL_OFFSET, 0, GRID - 1)
+    out = np.stack([ids, np.where(ids > 0, rows, 0), np.where(ids > 0, cols, 0)], axis=-1)
+    return out.astype(np.uint8)
+
+
+def episode_to_blocks(
+    observations: np.ndarray, actions: np.ndarray, rewards: np.ndarray, dones: np.ndarray, first_is_start: bool = True
+) -> np.ndarray:
+    """An episode (or a segment of one) -> [T, 15] token blocks.
+
+    The first block is context: its action is the dummy and its reward label 2 when it is an
+    episode's first observation; a segment starting later keeps its real action and reward.
+    """
+    blocks = np.zeros((len(observations), BLOCK), dtype=np.int64)
+    blocks[:, 0] = np.asarray(actions, dtype=np.int64)
+    blocks[:, 1 : 1 + OBS_TOKENS] = obs_to_tokens(observations)
+    blocks[:, -2] = reward_label(rewards)
+    blocks[:, -1] = np.asarray(dones, dtype=np.int64)
+    if first_is_start:
+        blocks[0, 0] = DUMMY_ACTION
+        blocks[0, -2] = FIRST_REWARD_LABEL
+        blocks[0, -1] = 0
+    return blocks

@@ -1,0 +1,270 @@
+"""Training of the world models (`lwm train`).
+
+The paper's recipe by default: AdamW lr 1e-4, weight decay 0.01 on Linear weights only, gradient
+norm clipped at 10, batches of 32 segments starting at a random step of a random episode, first
+block context only, padding masked; the best checkpoint by NewAll-dev total loss.
+
+A run directory holds `metrics.jsonl`, `last/` (weights + optimizer state, for resuming) and
+`best/` (the best dev checkpoint). Running the same command again resumes from `last/`.
+Under `torchrun` it trains with DistributedDataParallel (gloo on CPU, nccl on GPUs); each rank
+samples its own batches and rank 0 evaluates and writes.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.distributed as dist
+from safetensors.torch import load_file, save_file
+from torch import nn
+
+from .base import WorldModel
+from .batches import SplitTokens
+from .checkpoint import load_checkpoint, save_checkpoint
+from .frozen_text import FrozenTextEncoder
+from .registry import NEEDS_TEXT, PRESETS, build_model
+
+
+@dataclass
+class TrainArgs:
+    """Arguments of a training run (all recorded in the run's metrics and checkpoints)."""
+
+    data: str  # dataset directory from `lwm data generate`
+    out: str  # run directory
+    kind: str = "emma"  # emma | observational | standard | gpthard | oracle
+    preset: str = "paper"  # paper | small | tiny
+    steps: int = 100_000  # optimizer steps in total (a resumed run continues to this)
+    batch: int = 32
+    lr: float = 1e-4
+    warmup: int = 0  # linear warm-up steps (0: the paper's constant lr)
+    cosine: bool = False  # cosine decay to 10% of lr after warm-up (a budget-run option)
+    weight_decay: float = 0.01
+    clip: float = 10.0
+    seed: int = 0
+    eval_every: int = 1000
+    eval_split: str = "newall-dev"
+    eval_episodes: int | None = None  # None: the whole eval split
+    bf16: bool = False  # bf16 autocast on CPU (speed option)
+    attn_dropout: float | None = None  # None: the preset's dropout (paper 0.1); 0 enables fused attention
+    threads: int | None = None  # torch threads; None leaves PyTorch's default
+    tensorboard: bool = False
+    progress: bool = True
+    max_minutes: float | None = None  # stop (after saving) when this wall-clock budget is spent
+
+
+def _param_groups(model: nn.Module, weight_decay: float) -> list[dict]:
+    """Weight decay on Linear weights only (not biases, LayerNorms or embeddings)."""
+    decay, no_decay = [], []
+    for module in model.modules():
+        for name, p in module.named_parameters(recurse=False):
+            (decay if isinstance(module, nn.Linear) and name == "weight" else no_decay).append(p)
+    return [{"params": decay, "weight_decay": weight_decay}, {"params": no_decay, "weight_decay": 0.0}]
+
+
+def _lr_at(step: int, args: TrainArgs) -> float:
+    if args.warmup and step < args.warmup:
+        return args.lr * (step + 1) / args.warmup
+    if args.cosine:
+        progress = (step - args.warmup) / max(1, args.steps - args.warmup)
+        return args.lr * (0.1 + 0.9 * 0.5 * (1 + math.cos(math.pi * min(1.0, progress))))
+    return args.lr
+
+
+def _save_train_state(path: Path, optimizer: torch.optim.Optimizer, model: nn.Module, step: int, rng: np.random.Generator, best: float) -> None:
+    """Optimizer moments by parameter name, in safetensors (no pickles), plus JSON bookkeeping."""
+    names = {id(p): n for n, p in model.named_parameters()}
+    tensors = {}
+    for group in optimizer.param_groups:
+        for p in group["params"]:
+            state = optimizer.state.get(p)
+            if state:
+                n = names[id(p)]
+                tensors[f"exp_avg/{n}"] = state["exp_avg"].contiguous()
+                tensors[f"exp_avg_sq/{n}"] = state["exp_avg_sq"].contiguous()
+                tensors[f"step/{n}"] = torch.as_tensor(state["step"], dtype=torch.float64).reshape(1)
+    tmp = path / "optimizer.safetensors.tmp"
+    save_file(tensors, str(tmp))
+    os.replace(tmp, path / "optimizer.safetensors")
+    state = {"step": step, "rng": rng.bit_generator.state, "best_dev": best,
+             "torch_rng": torch.get_rng_state().tolist()}
+    tmp = path / "train_state.json.tmp"
+    tmp.write_text(json.dumps(state))
+    os.replace(tmp, path / "train_state.json")
+
+
+def _load_train_state(path: Path, optimizer: torch.optim.Optimizer, model: nn.Module) -> dict:
+    tensors = load_file(str(path / "optimizer.safetensors"))
+    params = dict(model.named_parameters())
+    for n, p in params.items():
+        if f"exp_avg/{n}" in tensors:
+            optimizer.state[p] = {
+                "exp_avg": tensors[f"exp_avg/{n}"],
+                "exp_avg_sq": tensors[f"exp_avg_sq/{n}"],
+                "step": torch.tensor(float(tensors[f"step/{n}"][0])),
+            }
+    state = json.loads((path / "train_state.json").read_text())
+    torch.set_rng_state(torch.tensor(state["torch_rng"], dtype=torch.uint8))
+    return state
+
+
+@torch.no_grad()
+def evaluate_loss(model: WorldModel, data: SplitTokens, batch: int = 64, limit: int | None = None, bf16: bool = False) -> dict[str, float]:
+    """Teacher-forced cross-entropy over whole episodes: exact per-token means of obs, reward and
+    done, and their total."""
+    was_training = model.training
+    model.eval()
+    sums = {"obs": 0.0, "reward": 0.0, "done": 0.0}
+    counts = dict.fromkeys(sums, 0)
+    for tokens, lengths, manual in data.full_episodes(batch, limit):
+        with torch.autocast("cpu", dtype=torch.bfloat16, enabled=bf16):
+            out = model(tokens, lengths, manual)
+        for k in sums:
+            sums[k] += float(out.sums[k])
+            counts[k] += int(out.counts[k])
+    model.train(was_training)
+    result = {k: sums[k] / max(1, counts[k]) for k in sums}
+    result["total"] = result["obs"] + result["reward"] + result["done"]
+    return result
+
+
+def train(args: TrainArgs, log=print) -> dict:
+    """Run (or resume) training; returns the final record."""
+    distributed = int(os.environ.get("WORLD_SIZE", "1")) > 1
+    rank = 0
+    if distributed:
+        backend = "nccl" if torch.cuda.is_available() else "gloo"
+        dist.init_process_group(backend)
+        rank = dist.get_rank()
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    if args.preset not in PRESETS:
+        raise ValueError(f"unknown preset {args.preset!r}; known: {list(PRESETS)}")
+    out = Path(args.out)
+    last, best_dir = out / "last", out / "best"
+
+    config = PRESETS[args.preset]
+    if args.attn_dropout is not None:
+        config = type(config)(
+            type(config.decoder)(**{**asdict(config.decoder), "attn_dropout": args.attn_dropout}), config.text
+        )
+    resuming = (last / "config.json").is_file() and (last / "train_state.json").is_file()
+    if resuming:
+        model, saved = load_checkpoint(last, kind=args.kind)
+        if saved.get("preset") != args.preset:
+            raise ValueError(f"{last} was trained with preset {saved.get('preset')!r}, not {args.preset!r}")
+    else:
+        torch.manual_seed(args.seed)
+        model = build_model(args.kind, config)
+    model.train()
+
+    encoder = FrozenTextEncoder() if NEEDS_TEXT[args.kind] else None
+    router = None
+    if args.kind == "gpthard":
+        from ..text.parser import route_identity_id
+
+        router = route_identity_id
+    train_data = SplitTokens(args.data, "train", encoder, router)
+    dev_data = SplitTokens(args.data, args.eval_split, encoder, router) if rank == 0 else None
+
+    optimizer = torch.optim.AdamW(_param_groups(model, args.weight_decay), lr=args.lr, betas=(0.9, 0.999))
+    rng = np.random.default_rng([args.seed, rank])
+    step, best = 0, float("inf")
+    if resuming:
+        state = _load_train_state(last, optimizer, model)
+        step, best = state["step"], state["best_dev"]
+        rng.bit_generator.state = state["rng"]
+        if rank == 0:
+            log(f"resuming {args.kind} from step {step} (best dev {best:.4f})")
+    net: nn.Module = nn.parallel.DistributedDataParallel(model) if distributed else model
+
+    meta = {"preset": args.preset, "train_args": asdict(args), "data": str(args.data),
+            "text_encoder": encoder.name if encoder else None}
+    metrics_path = out / "metrics.jsonl"
+    writer = None
+    if rank == 0:
+        out.mkdir(parents=True, exist_ok=True)
+        if args.tensorboard:
+            try:
+                from torch.utils.tensorboard import SummaryWriter
+
+                writer = SummaryWriter(str(out / "tb"))
+            except ImportError:
+                log("tensorboard is not installed; metrics go to metrics.jsonl only")
+
+    def record(entry: dict) -> None:
+        if rank != 0:
+            return
+        with open(metrics_path, "a") as f:
+            f.write(json.dumps(entry) + "\n")
+        if writer:
+            for k, v in entry.items():
+                if isinstance(v, (int, float)) and k != "step":
+                    writer.add_scalar(k, v, entry["step"])
+
+    def checkpoint(dev: dict | None) -> None:
+        nonlocal best
+        if rank != 0:
+            return
+        extra = {**meta, "steps": step, "seed": args.seed}
+        if dev is not None:
+            extra["dev"] = {args.eval_split: dev}
+            if dev["total"] < best:
+                best = dev["total"]
+                save_checkpoint(model, best_dir, extra)
+        save_checkpoint(model, last, extra)
+        _save_train_state(last, optimizer, model, step, rng, best)
+
+    bar = None
+    if rank == 0 and args.progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=args.steps, initial=step, unit="step", desc=f"train {args.kind}")
+    began = time.perf_counter()
+    window: list[float] = []
+    stop_reason = "steps"
+    while step < args.steps:
+        lr = _lr_at(step, args)
+        for g in optimizer.param_groups:
+            g["lr"] = lr
+        tokens, lengths, manual = train_data.sample(rng, args.batch)
+        with torch.autocast("cpu", dtype=torch.bfloat16, enabled=args.bf16):
+            out_ = net(tokens, lengths, manual)
+        optimizer.zero_grad(set_to_none=True)
+        out_.loss.backward()
+        grad_norm = float(nn.utils.clip_grad_norm_(model.parameters(), args.clip))
+        optimizer.step()
+        step += 1
+        window.append(float(out_.loss))
+        if bar:
+            bar.update(1)
+            bar.set_postfix(loss=f"{np.mean(window[-50:]):.3f}")
+        if step % 50 == 0:
+            record({"step": step, "loss": float(np.mean(window)), "obs": float(out_.obs), "reward": float(out_.reward),
+                    "done": float(out_.done), "lr": lr, "grad_norm": grad_norm,
+                    "elapsed_s": round(time.perf_counter() - began, 1), "seed": args.seed})
+            window = []
+        out_of_time = args.max_minutes is not None and time.perf_counter() - began > 60 * args.max_minutes
+        if step % args.eval_every == 0 or step == args.steps or out_of_time:
+            dev = None
+            if rank == 0:
+                dev = evaluate_loss(model, dev_data, limit=args.eval_episodes, bf16=args.bf16)
+                record({"step": step, **{f"dev_{k}": v for k, v in dev.items()}, "seed": args.seed})
+                if bar:
+                    bar.write(f"step {step}: {args.eval_split} total {dev['total']:.4f} (obs {dev['obs']:.4f})")
+            checkpoint(dev)
+        if out_of_time:
+            stop_reason = "time budget"
+            break
+    if bar:
+        bar.close()
+    if distributed:
+        dist.barrier()
+        dist.destroy_process_group()
+    return {"step": step, "best_dev": best, "stopped": stop_reason, "out": str(out)}

@@ -1,0 +1,179 @@
+"""World models: tokenizer, decoder with KV cache, families, checkpoints."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from lwm_models.errors import ShapeError
+from lwm_models.messenger import rollout
+from lwm_models.data.splits import load_split
+from lwm_models.world.base import ManualBatch
+from lwm_models.world.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
+from lwm_models.world.imagine import imagine
+from lwm_models.world.registry import KINDS, PRESETS, build_model
+from lwm_models.world.tokens import (
+    BLOCK,
+    DUMMY_ACTION,
+    episode_to_blocks,
+    obs_to_tokens,
+    reward_label,
+    tokens_to_obs,
+)
+
+
+@pytest.fixture(scope="module")
+def episodes():
+    games = load_split("train")[:40]
+    return rollout(games, np.arange(40), np.arange(40) % 5)
+
+
+def fake_manual(b: int, seed: int = 0) -> ManualBatch:
+    g = torch.Generator().manual_seed(seed)
+    lengths = torch.randint(5, 20, (b, 3), generator=g)
+    mask = torch.arange(36)[None, None] < lengths[..., None]
+    parse = torch.stack([torch.tensor([[4, 12, 10]] * b), torch.randint(0, 3, (b, 3), generator=g),
+                         torch.tensor([[0, 1, 2]] * b)], -1)
+    return ManualBatch(torch.randn(b, 3, 36, 384, generator=g), mask, parse, torch.tensor([[4, 12, 10]] * b))
+
+
+def test_tokens_round_trip_exactly(episodes):
+    obs = episodes.observations
+    tokens = obs_to_tokens(obs)
+    assert tokens.shape == obs.shape[:-2] + (12,)
+    np.testing.assert_array_equal(tokens_to_obs(tokens), obs)
+    empty = np.zeros((4, 3), dtype=np.uint8)
+    assert obs_to_tokens(empty).tolist() == [0, 17, 27] * 4
+
+
+def test_reward_labels():
+    assert reward_label(np.array([-1.0, 0.0, 0.5, 1.0])).tolist() == [0, 2, 3, 4]
+    with pytest.raises(ValueError):
+        reward_label(2.0)
+
+
+def test_episode_blocks(episodes):
+    n = int(episodes.lengths[0])
+    blocks = episode_to_blocks(episodes.observations[0, :n], episodes.actions[0, :n], episodes.rewards[0, :n], episodes.dones[0, :n])
+    assert blocks.shape == (n, BLOCK)
+    assert blocks[0, 0] == DUMMY_ACTION and blocks[0, -2] == 2 and blocks[0, -1] == 0
+    assert blocks[-1, -1] == 1
+    assert (blocks[1:, 0] == episodes.actions[0, 1:n]).all()
+
+
+def test_shape_errors():
+    with pytest.raises(ShapeError):
+        obs_to_tokens(np.zeros((3, 3)))
+    with pytest.raises(ShapeError):
+        tokens_to_obs(np.zeros(11))
+
+
+@pytest.mark.parametrize("kind", list(KINDS))
+def test_every_family_trains_and_masks_padding(kind):
+    torch.manual_seed(0)
+    model = build_model(kind, PRESETS["tiny"])
+    tokens = torch.randint(0, 2, (3, 4 * BLOCK))
+    lengths = torch.tensor([4, 2, 3])
+    manual = fake_manual(3)
+    out = model(tokens, lengths, manual)
+    # Obs targets: blocks 1..len-1, 12 tokens each; padding beyond a sequence's length is masked.
+    assert int(out.counts["obs"]) == 12 * (3 + 1 + 2)
+    assert int(out.counts["reward"]) == 6 and int(out.counts["done"]) == 6
+    out.loss.backward()
+    changed = tokens.clone()
+    changed[1, 2 * BLOCK :] = 1  # padding of sequence 1
+    model.eval()
+    a, b = model(tokens, lengths, manual), model(changed, lengths, manual)
+    assert torch.allclose(a.loss, b.loss)
+
+
+def test_emma_reads_the_manual_and_observational_does_not():
+    torch.manual_seed(0)
+    tokens = torch.randint(0, 2, (2, 3 * BLOCK))
+    tokens[:, 1] = 4  # an entity id token
+    lengths = torch.tensor([3, 3])
+    emma = build_model("emma", PRESETS["tiny"]).eval()
+    obs = build_model("observational", PRESETS["tiny"]).eval()
+    m1, m2 = fake_manual(2, seed=1), fake_manual(2, seed=2)
+    assert not torch.allclose(emma(tokens, lengths, m1).loss, emma(tokens, lengths, m2).loss)
+    assert torch.allclose(obs(tokens, lengths, m1).loss, obs(tokens, lengths, m2).loss)
+
+
+@pytest.mark.parametrize("kind", ["emma", "standard"])
+def test_kv_cache_matches_full_recompute(kind):
+    torch.manual_seed(0)
+    model = build_model(kind, PRESETS["tiny"]).eval()
+    manual = fake_manual(2)
+    tokens = torch.randint(0, 2, (2, 3 * BLOCK))
+    cond = model.condition(manual)
+    full = model.hidden_states(tokens, cond)
+    cache = model.new_cache(2)
+    parts = [model.hidden_states(tokens[:, :BLOCK], cond, cache)]
+    for i in range(BLOCK, 3 * BLOCK, 2):
+        parts.append(model.hidden_states(tokens[:, i : i + 2], cond, cache))
+    torch.testing.assert_close(torch.cat(parts, 1), full, rtol=1e-4, atol=1e-5)
+
+
+def test_imagination_with_and_without_cache_agree(episodes):
+    torch.manual_seed(0)
+    model = build_model("emma", PRESETS["tiny"]).eval()
+    manual = fake_manual(1)
+    first = episodes.observations[0, 0]
+    actions = np.full((4, 32), 4)
+    a = imagine(model, manual, first, n=4, actions=actions, seed=3, max_steps=6)
+    b = imagine(model, manual, first, n=4, actions=actions, seed=3, max_steps=6, use_cache=False)
+    np.testing.assert_array_equal(a.observations, b.observations)
+    np.testing.assert_array_equal(a.lengths, b.lengths)
+    assert (a.observations[:, 0] == first).all()
+    assert a.token_probs[:, 1].min() > 0
+
+
+def test_imagination_with_a_policy_and_bad_inputs(episodes):
+    model = build_model("observational", PRESETS["tiny"]).eval()
+    calls = []
+
+    def policy(obs, idx, t):
+        calls.append((obs.shape, t))
+        return np.full(len(idx), 1)
+
+    im = imagine(model, ManualBatch(), episodes.observations[0, 0], n=3, policy=policy, seed=0, max_steps=4)
+    assert calls[0] == ((3, 1, 4, 3), 1)
+    assert (im.actions[:, 1] == 1).all()
+    with pytest.raises(ValueError):
+        imagine(model, ManualBatch(), episodes.observations[0, 0], n=1, seed=0)
+    with pytest.raises(ShapeError):
+        imagine(model, ManualBatch(), np.zeros((3, 3)), n=1, actions=np.zeros(32, dtype=int))
+    with pytest.raises(ValueError):
+        imagine(model, ManualBatch(), episodes.observations[0, 0], n=1, actions=np.full(32, 7))
+
+
+def test_checkpoint_round_trip_and_corruption(tmp_path):
+    model = build_model("emma", PRESETS["tiny"])
+    path = save_checkpoint(model, tmp_path / "ckpt", {"steps": 3}, dtype=torch.float16)
+    loaded, config = load_checkpoint(path)
+    assert config["kind"] == "emma" and config["steps"] == 3
+    for (k, v), (k2, v2) in zip(model.state_dict().items(), loaded.state_dict().items()):
+        assert k == k2
+        torch.testing.assert_close(v.half().float(), v2)
+    with pytest.raises(CheckpointError, match="holds a 'emma'"):
+        load_checkpoint(path, kind="observational")
+    weights = path / "model.safetensors"
+    data = weights.read_bytes()
+    weights.write_bytes(data[: len(data) // 2])
+    with pytest.raises(CheckpointError, match="corrupt or truncated"):
+        load_checkpoint(path)
+    weights.write_bytes(data)
+    cfg = json.loads((path / "config.json").read_text())
+    cfg["config"]["decoder"]["hidden"] = 64
+    (path / "config.json").write_text(json.dumps(cfg))
+    with pytest.raises(CheckpointError, match="does not fit"):
+        load_checkpoint(path)
+    cfg["kind"] = "transformer-xl"
+    (path / "config.json").write_text(json.dumps(cfg))
+    with pytest.raises(CheckpointError, match="unknown model kind"):
+        load_checkpoint(path)
+    with pytest.raises(CheckpointError, match="no config.json"):
+        load_checkpoint(tmp_path / "nowhere")
