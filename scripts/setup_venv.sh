@@ -1,5 +1,6 @@
 #!/usr/bin/env bash
-# Create or update .venv (Python 3.11) with the pinned dependencies and the project itself.
+# Create or update .venv (Python 3.11) with the pinned dependencies and the project itself, then
+# build the ROS 2 service types into it.
 # Idempotent and fast when nothing changed: a stamp file records the hash of everything that
 # decides the venv's contents.
 set -euo pipefail
@@ -10,7 +11,7 @@ python_bin="${PYTHON:-python3.11}"
 stamp_inputs=("$root/requirements.txt" "$root/pyproject.toml" "$root/scripts/setup_venv.sh")
 want="$(cat "${stamp_inputs[@]}" | sha256sum | cut -d' ' -f1)"
 if [[ -x "$venv/bin/python" && -f "$venv/.setup-stamp" && "$(cat "$venv/.setup-stamp")" == "$want" ]]; then
-  exit 0
+  exec "$root/scripts/build_ros_interfaces.sh"
 fi
 
 if ! command -v "$python_bin" >/dev/null 2>&1; then
@@ -30,3 +31,4 @@ quiet_local_index() { grep -v "^WARNING: Location 'file://" >&2 || true; }
 "${pip[@]}" install --no-deps -e "$root" 2> >(quiet_local_index)
 echo "$want" > "$venv/.setup-stamp"
 echo "setup: done" >&2
+exec "$root/scripts/build_ros_interfaces.sh"

@@ -3,6 +3,9 @@
     lwm data splits [--seed N] [--out FILE]
     lwm data generate --out DIR [--text-source generated|PATH ...] [--seed N] [--episodes-per-game N]
     lwm play [--split S] [--index I] ...
+    lwm train --data DIR --out RUN [--kind emma] [--preset paper] ...
+    lwm eval --checkpoint DIR --data DIR [--out results.json] [--plot loss.png] [--texts PATH ...]
+    lwm imagine --checkpoint DIR [--split S --index I] [--policy go_to_goal | --actions 3,3,1] ...
 
 Errors in the user's input exit with status 2 and a one-line message, not a traceback.
 """
@@ -15,7 +18,7 @@ import sys
 from pathlib import Path
 
 from ..errors import LwmError
-from ..messenger.constants import DEFAULT_MAX_STEPS, SPLITS
+from ..messenger.constants import DEFAULT_MAX_STEPS
 
 
 def _cmd_splits(args: argparse.Namespace) -> int:
@@ -80,6 +83,45 @@ def _cmd_generate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _add_dataclass_args(p: argparse.ArgumentParser, cls) -> None:
+    """One --flag per field of a dataclass, typed from its annotation (documented in TrainArgs)."""
+    import dataclasses
+
+    for f in dataclasses.fields(cls):
+        flag = "--" + f.name.replace("_", "-")
+        required = f.default is dataclasses.MISSING
+        kind = str(f.type)
+        if kind == "bool":
+            p.add_argument(flag, action=argparse.BooleanOptionalAction, default=f.default)
+            continue
+        conv = int if "int" in kind and "float" not in kind else float if "float" in kind else str
+        p.add_argument(flag, type=conv, required=required, default=None if required else f.default,
+                       help=f"default: {f.default}" if not required else "required")
+
+
+def _cmd_train(args: argparse.Namespace) -> int:
+    import dataclasses
+
+    from ..world.train import TrainArgs, train
+
+    fields = {f.name for f in dataclasses.fields(TrainArgs)}
+    result = train(TrainArgs(**{k: v for k, v in vars(args).items() if k in fields}))
+    print(json.dumps(result))
+    return 0
+
+
+def _cmd_eval(args: argparse.Namespace) -> int:
+    from ..world.cli_eval import run_eval
+
+    return run_eval(args)
+
+
+def _cmd_imagine(args: argparse.Namespace) -> int:
+    from ..world.cli_imagine import run_imagine
+
+    return run_imagine(args)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="lwm", description="Language-guided world models on Messenger-WM.")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -108,6 +150,38 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--typo-rate", type=float, default=0.0, help="typo rate of generated descriptions")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=_cmd_generate)
+
+    from ..world.train import TrainArgs
+
+    p = sub.add_parser("train", help="train a world model (resumes when the run directory has one)")
+    _add_dataclass_args(p, TrainArgs)
+    p.set_defaults(func=_cmd_train)
+
+    p = sub.add_parser("eval", help="evaluate a world model: cross-entropy and imagination metrics")
+    p.add_argument("--checkpoint", type=Path, required=True, help="checkpoint directory")
+    p.add_argument("--data", type=Path, required=True, help="dataset directory")
+    p.add_argument("--splits", nargs="+", default=["newcombo-test", "newattr-test", "newall-test"])
+    p.add_argument("--loss-episodes", type=int, default=None, help="episodes per split for CE (default all)")
+    p.add_argument("--imagination-episodes", type=int, default=200, help="episodes per split to imagine (0: skip)")
+    p.add_argument("--texts", nargs="+", default=None, help="re-draw the manuals from these description files")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--out", type=Path, default=None, help="write the results as JSON here")
+    p.add_argument("--plot", type=Path, default=None, help="write loss against history length as PNG here")
+    p.set_defaults(func=_cmd_eval)
+
+    p = sub.add_parser("imagine", help="imagine trajectories of a game with a world model")
+    p.add_argument("--checkpoint", type=Path, default=None, help="checkpoint directory (default: shipped EMMA-LWM)")
+    p.add_argument("--split", default="newall-test", help="split of the game")
+    p.add_argument("--index", type=int, default=0, help="game index in the split")
+    p.add_argument("--seed", type=int, default=0, help="seed of the real first observation and the sampling")
+    p.add_argument("--n", type=int, default=1, help="number of trajectories")
+    p.add_argument("--policy", default="go_to_goal", help="behaviour policy that acts in imagination")
+    p.add_argument("--actions", default=None, help="comma-separated actions 0-4 instead of a policy")
+    p.add_argument("--max-steps", type=int, default=DEFAULT_MAX_STEPS)
+    p.add_argument("--texts", nargs="+", default=None, help="draw the manual from these description files")
+    p.add_argument("--png", type=Path, default=None, help="write the first trajectory as a PNG strip")
+    p.add_argument("--json", action="store_true", help="print the trajectories as JSON")
+    p.set_defaults(func=_cmd_imagine)
 
     p = sub.add_parser("play", help="play a Messenger game in the terminal", add_help=False)
     p.add_argument("rest", nargs=argparse.REMAINDER)

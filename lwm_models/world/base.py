@@ -168,7 +168,7 @@ class WorldModel(nn.Module):
     def new_cache(self, batch: int, max_len: int = MAX_LEN) -> KVCache:
         p = next(self.parameters())
         cfg = self.decoder_config
-        return KVCache(cfg.layers, batch, cfg.heads, cfg.hidden // cfg.heads, max_len, p.dtype, p.device)
+        return KVCache(cfg.layers, batch, cfg.num_kv_heads, cfg.hidden // cfg.heads, max_len, p.dtype, p.device)
 
     def next_token_logits(self, h: torch.Tensor, next_position: int) -> torch.Tensor:
         """Logits for the token at absolute `next_position`, from the hidden state before it."""

@@ -63,15 +63,16 @@ class SplitTokens:
         self.offsets = np.asarray(self.ds.episode_offsets)
         self.lengths = np.diff(self.offsets)
         self.manuals = np.asarray(self.ds.manuals, dtype=np.int64)
+        self.texts: list[str] = list(self.ds.texts)
         self.parse_codes = TRIPLE_CODES[np.asarray(self.ds.parses, dtype=np.int64)]  # [E, 3, 3]
         self.features = self.text_lengths = None
         if encoder is not None:
-            feats, lengths = encoder.encode_arrays(self.ds.texts)
+            feats, lengths = encoder.encode_arrays(self.texts)
             self.features = torch.from_numpy(feats)  # [num_texts, T, F] float16
             self.text_lengths = torch.from_numpy(lengths)
         self.routed = None
         if router is not None:
-            self.routed = np.array([router(t) for t in self.ds.texts], dtype=np.int64)
+            self.routed = np.array([router(t) for t in self.texts], dtype=np.int64)
 
     def __len__(self) -> int:
         return len(self.lengths)
@@ -115,3 +116,21 @@ class SplitTokens:
             chunk = episodes[lo : lo + batch]
             tokens, lengths = self.segments(chunk, np.zeros(len(chunk), dtype=np.int64))
             yield tokens, lengths, self.manual_batch(chunk)
+
+
+def redraw_manuals(data: SplitTokens, pools, encoder: FrozenTextEncoder | None, seed: int = 0) -> None:
+    """Replace every episode's manual by descriptions drawn from `pools` (e.g. human-written
+    files) for the same triples in the same order, then encode them."""
+    rng = np.random.default_rng([seed, 0x524544])
+    texts: dict[str, int] = {}
+    manuals = np.zeros_like(data.manuals)
+    for e, parse in enumerate(np.asarray(data.ds.parses)):
+        triples = [ALL_TRIPLES[int(i)] for i in parse]
+        for k, text in enumerate(pools.draw(data.split, triples, rng)):
+            manuals[e, k] = texts.setdefault(text, len(texts))
+    data.manuals = manuals
+    data.texts = list(texts)
+    if encoder is not None:
+        feats, lengths = encoder.encode_arrays(data.texts)
+        data.features = torch.from_numpy(feats)
+        data.text_lengths = torch.from_numpy(lengths)

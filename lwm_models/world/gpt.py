@@ -27,6 +27,9 @@ class DecoderConfig:
     attn_dropout: dropout on attention probabilities; None means `dropout`. 0 lets PyTorch use
         its fused CPU attention kernel (a measured speed option, documented in the README).
     cross_attention: add a cross-attention sub-layer to every block (the Standard baseline).
+    kv_heads: key/value heads of self-attention; None means `heads` (standard multi-head, the
+        paper). Fewer (grouped-query; 1 is multi-query attention) shrink the KV cache that
+        imagination reads at every token, which is what bounds its speed on a CPU.
     """
 
     hidden: int = 256
@@ -35,10 +38,17 @@ class DecoderConfig:
     dropout: float = 0.1
     attn_dropout: float | None = None
     cross_attention: bool = False
+    kv_heads: int | None = None
 
     def __post_init__(self) -> None:
         if self.hidden % self.heads:
             raise ValueError(f"hidden ({self.hidden}) must be divisible by heads ({self.heads})")
+        if self.heads % self.num_kv_heads:
+            raise ValueError(f"heads ({self.heads}) must be divisible by kv_heads ({self.kv_heads})")
+
+    @property
+    def num_kv_heads(self) -> int:
+        return self.heads if self.kv_heads is None else self.kv_heads
 
     @property
     def attention_dropout(self) -> float:
@@ -68,31 +78,40 @@ class SelfAttention(nn.Module):
     def __init__(self, cfg: DecoderConfig) -> None:
         super().__init__()
         self.heads = cfg.heads
-        self.scale = attention_scale(cfg.hidden // cfg.heads)
-        self.qkv = nn.Linear(cfg.hidden, 3 * cfg.hidden)
+        self.kv_heads = cfg.num_kv_heads
+        self.head_dim = cfg.hidden // cfg.heads
+        self.scale = attention_scale(self.head_dim)
+        self.qkv = nn.Linear(cfg.hidden, cfg.hidden + 2 * self.kv_heads * self.head_dim)
         self.proj = nn.Linear(cfg.hidden, cfg.hidden)
         self.attn_dropout = cfg.attention_dropout
         self.resid_dropout = nn.Dropout(cfg.dropout)
 
     def forward(self, x: torch.Tensor, cache: KVCache | None = None, layer: int = 0) -> torch.Tensor:
         b, n, h = x.shape
-        q, k, v = self.qkv(x).view(b, n, 3, self.heads, h // self.heads).permute(2, 0, 3, 1, 4)
-        p = self.attn_dropout if self.training else 0.0
+        d, kvh = self.head_dim, self.kv_heads
+        q, k, v = self.qkv(x).split([h, kvh * d, kvh * d], dim=-1)
+        q = q.view(b, n, self.heads, d).transpose(1, 2)  # [B, heads, n, d]
+        k = k.view(b, n, kvh, d).transpose(1, 2)  # [B, kv_heads, n, d]
+        v = v.view(b, n, kvh, d).transpose(1, 2)
         if cache is None:
-            y = F.scaled_dot_product_attention(q, k, v, is_causal=True, dropout_p=p)
+            p = self.attn_dropout if self.training else 0.0
+            y = F.scaled_dot_product_attention(q, k, v, is_causal=True, dropout_p=p, enable_gqa=kvh != self.heads)
         else:
             start = cache.length
             cache.k[layer, :, :, start : start + n] = k
             cache.v[layer, :, :, start : start + n] = v
-            keys = cache.k[layer, :, :, : start + n]
+            keys = cache.k[layer, :, :, : start + n]  # [B, kv_heads, L, d]
             values = cache.v[layer, :, :, : start + n]
-            # Plain matmuls: for a query of a token or two against a strided cache view they are
-            # several times faster on CPU than scaled_dot_product_attention, which copies.
-            scores = (q @ keys.transpose(-1, -2)) * self.scale
+            # The query heads that share a key/value head become rows of one matmul, so each
+            # cached key is read once per token. Plain matmuls: for a query of a token or two
+            # against a strided cache view they beat scaled_dot_product_attention on CPU.
+            group = self.heads // kvh
+            qg = q.reshape(b, kvh, group * n, d)
+            scores = (qg @ keys.transpose(-1, -2)) * self.scale  # [B, kv_heads, group * n, L]
             if n > 1:  # new token i sees the past and the new tokens up to itself
                 allowed = torch.ones(n, start + n, dtype=torch.bool, device=x.device).tril(diagonal=start)
-                scores = scores.masked_fill(~allowed, float("-inf"))
-            y = torch.softmax(scores, dim=-1) @ values
+                scores = scores.masked_fill(~allowed.repeat(group, 1), float("-inf"))
+            y = (torch.softmax(scores, dim=-1) @ values).reshape(b, self.heads, n, d)
         y = y.transpose(1, 2).reshape(b, n, h)
         return self.resid_dropout(self.proj(y))
 

@@ -241,13 +241,13 @@ def train(args: TrainArgs, log=print) -> dict:
         grad_norm = float(nn.utils.clip_grad_norm_(model.parameters(), args.clip))
         optimizer.step()
         step += 1
-        window.append(float(out_.loss))
+        window.append(out_.loss.item())
         if bar:
             bar.update(1)
             bar.set_postfix(loss=f"{np.mean(window[-50:]):.3f}")
         if step % 50 == 0:
-            record({"step": step, "loss": float(np.mean(window)), "obs": float(out_.obs), "reward": float(out_.reward),
-                    "done": float(out_.done), "lr": lr, "grad_norm": grad_norm,
+            record({"step": step, "loss": float(np.mean(window)), "obs": out_.obs.item(), "reward": out_.reward.item(),
+                    "done": out_.done.item(), "lr": lr, "grad_norm": grad_norm,
                     "elapsed_s": round(time.perf_counter() - began, 1), "seed": args.seed})
             window = []
         out_of_time = args.max_minutes is not None and time.perf_counter() - began > 60 * args.max_minutes

@@ -1,0 +1,114 @@
+"""`lwm imagine`: imagine a game's trajectories with a world model and show them."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+import numpy as np
+
+from ..data.splits import load_split
+from ..errors import LwmError
+from ..messenger.constants import ACTION_NAMES, IDENTITIES
+from ..messenger.engine import BatchedMessenger
+from ..messenger.policies import POLICIES, behaviour_actions, policy_index
+from ..messenger.rng import seed_keys
+from ..messenger.spec import GameSpec
+from .checkpoint import load_checkpoint
+from .frozen_text import FrozenTextEncoder
+from .imagine import Imagination, imagine
+from .manual import manual_batch
+from .registry import NEEDS_TEXT
+from .shipped import shipped_checkpoint
+
+
+def imagined_policy(game: GameSpec, policy: str, seed: int):
+    """A behaviour policy that reads imagined observations, knowing the game's true roles."""
+    p = policy_index(policy)
+    role_ids = [IDENTITIES[e.identity] for e in game.entities]
+
+    def act(obs: np.ndarray, idx: np.ndarray, t: int) -> np.ndarray:
+        last = obs[:, -1]  # [n, 4, 3]
+        n = len(idx)
+        avatar = last[:, 3, 1:].astype(np.int64)
+        entities = np.zeros((n, 3, 2), dtype=np.int64)
+        present = np.zeros((n, 3), dtype=bool)
+        for k, eid in enumerate(role_ids):
+            hit = last[:, :3, 0] == eid
+            present[:, k] = hit.any(1)
+            ch = hit.argmax(1)
+            entities[:, k] = last[np.arange(n), ch, 1:]
+        has_message = last[:, 3, 0] == 16
+        keys = seed_keys(np.asarray(idx) + seed)
+        return behaviour_actions(np.full(n, p), avatar, entities, present, has_message, keys, t)
+
+    return act
+
+
+def run_imagine(args: argparse.Namespace) -> int:
+    from ..messenger.render import render_ascii, render_trajectory_png
+    from ..text import DescriptionPools
+
+    path = args.checkpoint or shipped_checkpoint("emma")
+    model, config = load_checkpoint(path)
+    games = load_split(args.split)
+    if not 0 <= args.index < len(games):
+        raise LwmError(f"--index must be in 0..{len(games) - 1} for {args.split}")
+    game = games[args.index]
+    pools = DescriptionPools.from_files(args.texts) if args.texts else DescriptionPools.generated()
+    engine = BatchedMessenger(max_steps=args.max_steps)
+    engine.reset([game], [args.seed])
+    first = engine.compact_observation()[0]
+    rng = np.random.default_rng(args.seed)
+    manual = pools.draw(args.split, list(game.triples), rng)
+    encoder = FrozenTextEncoder() if NEEDS_TEXT[config["kind"]] else None
+    batch = manual_batch(config["kind"], manual, encoder, list(game.triples))
+    if args.actions:
+        try:
+            acts = [int(a) for a in args.actions.split(",")]
+        except ValueError:
+            raise LwmError("--actions is a comma-separated list of integers 0-4") from None
+        acts = (acts + [4] * args.max_steps)[: args.max_steps]
+        im = imagine(model, batch, first, n=args.n, actions=np.array(acts), max_steps=args.max_steps, seed=args.seed)
+    else:
+        if args.policy not in POLICIES:
+            raise LwmError(f"--policy must be one of {list(POLICIES)}")
+        im = imagine(model, batch, first, n=args.n, policy=imagined_policy(game, args.policy, args.seed),
+                     max_steps=args.max_steps, seed=args.seed)
+    if args.json:
+        print(json.dumps(imagination_json(im)))
+        return 0
+    print(f"game {args.split}[{args.index}]: {game}")
+    print("manual:")
+    for d in manual:
+        print(f"  - {d}")
+    show(im, 0, render_ascii)
+    print(f"imagined returns of {args.n} trajectories: {np.round(im.returns, 2).tolist()}")
+    if args.png:
+        n = int(im.lengths[0])
+        render_trajectory_png(im.observations[0, :n], args.png, rewards=im.rewards[0, :n], actions=im.actions[0, :n])
+        print(f"trajectory written to {args.png}")
+    return 0
+
+
+def show(im: Imagination, i: int, render) -> None:
+    conf = im.confidence()
+    for t in range(int(im.lengths[i])):
+        head = "start" if t == 0 else f"step {t}: {ACTION_NAMES[im.actions[i, t]]}, reward {im.rewards[i, t]:+.1f}, confidence {conf[i, t]:.2f}"
+        print(head + (" (done)" if im.dones[i, t] else ""))
+        print(render(im.observations[i, t]))
+
+
+def imagination_json(im: Imagination) -> list[dict]:
+    out = []
+    for i in range(len(im.lengths)):
+        n = int(im.lengths[i])
+        out.append({
+            "observations": im.observations[i, :n].tolist(),
+            "actions": im.actions[i, 1:n].tolist(),
+            "rewards": im.rewards[i, 1:n].tolist(),
+            "dones": im.dones[i, 1:n].tolist(),
+            "confidence": im.confidence()[i, 1:n].round(4).tolist(),
+            "return": float(im.returns[i]),
+        })
+    return out

@@ -1,0 +1,163 @@
+"""Evaluation of world models as in the paper (§3): teacher-forced cross-entropy per test split
+(Table 1), imagination metrics from replayed test episodes (Table 2), and loss against the length
+of the history prefix.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from ..messenger.constants import ACTION_DELTAS, DEFAULT_MAX_STEPS, GRID, IDENTITIES
+from .base import WorldModel
+from .batches import SplitTokens
+from .imagine import imagine
+from .tokens import BLOCK, OBS_TOKENS, SLOT_DONE, SLOT_KIND, SLOT_OBS, SLOT_REWARD
+from .train import evaluate_loss
+
+TEST_SPLITS = ("newcombo-test", "newattr-test", "newall-test")
+
+
+@torch.no_grad()
+def loss_by_prefix(model: WorldModel, data: SplitTokens, batch: int = 64, limit: int | None = None) -> dict[str, list[float]]:
+    """Mean cross-entropy of each block's tokens by the block's index in its episode (1..32): how
+    the loss falls as the model sees more history."""
+    model.eval()
+    sums = np.zeros((3, 33))
+    counts = np.zeros((3, 33))
+    for tokens, lengths, manual in data.full_episodes(batch, limit):
+        h = model.hidden_states(tokens, model.condition(manual))
+        n = tokens.shape[1]
+        nxt = np.arange(BLOCK, n)
+        for row, (kind, head) in enumerate(
+            ((SLOT_OBS, model.obs_head), (SLOT_REWARD, model.reward_head), (SLOT_DONE, model.done_head))
+        ):
+            pos = nxt[SLOT_KIND[nxt % BLOCK] == kind]
+            logits = head(h[:, pos - 1]).float()
+            ce = F.cross_entropy(logits.transpose(1, 2), tokens[:, pos], reduction="none").numpy()
+            valid = pos[None, :] < (lengths.numpy()[:, None] * BLOCK)
+            block_idx = pos // BLOCK
+            np.add.at(sums[row], block_idx, (ce * valid).sum(0))
+            np.add.at(counts[row], block_idx, valid.sum(0))
+    mean = sums / np.maximum(counts, 1)
+    steps = [i for i in range(1, 33) if counts[0, i] > 0]
+    return {
+        "step": steps,
+        "obs": [float(mean[0, i]) for i in steps],
+        "reward": [float(mean[1, i]) for i in steps],
+        "done": [float(mean[2, i]) for i in steps],
+        "total": [float(mean[:, i].sum()) for i in steps],
+    }
+
+
+def _positions(obs: np.ndarray, entity_id: int) -> np.ndarray | None:
+    """(row, col) of the channel holding `entity_id` in a compact observation, or None."""
+    hit = np.flatnonzero(obs[:3, 0] == entity_id)
+    return obs[hit[0], 1:].astype(np.int64) if len(hit) else None
+
+
+def _avatar(obs: np.ndarray) -> np.ndarray | None:
+    return obs[3, 1:].astype(np.int64) if obs[3, 0] in (15, 16) else None
+
+
+def _reach(movement: str) -> int:
+    return 2 if movement == "chaser" else 1
+
+
+def _near(prev_obs: np.ndarray, action: int, entity_id: int, movement: str) -> bool:
+    """Was the entity within collision reach of the avatar's previous cell moved by the action?"""
+    avatar = _avatar(prev_obs)
+    entity = _positions(prev_obs, entity_id)
+    if avatar is None or entity is None:
+        return False
+    moved = np.clip(avatar + np.array(ACTION_DELTAS[action]), 0, GRID - 1)
+    return int(np.abs(moved - entity).sum()) <= _reach(movement)
+
+
+@dataclass
+class ImaginationMetrics:
+    delta_dist: float
+    reward_precision: float
+    termination_precision: float
+    reward_steps: int
+    done_steps: int
+    episodes: int
+
+    def as_dict(self) -> dict:
+        return dict(self.__dict__)
+
+
+def imagination_metrics(
+    model: WorldModel, data: SplitTokens, episodes: int | None = None, seed: int = 0, batch: int = 64,
+    max_steps: int = DEFAULT_MAX_STEPS,
+) -> ImaginationMetrics:
+    """Replay test episodes' actions in imagination from their real first observation."""
+    ds = data.ds
+    chosen = np.arange(len(data))
+    if episodes is not None and episodes < len(chosen):
+        chosen = np.linspace(0, len(chosen) - 1, episodes).round().astype(np.int64)
+    dist_err, dist_n = 0.0, 0
+    reward_ok = reward_n = done_ok = done_n = 0
+    for lo in range(0, len(chosen), batch):
+        idx = chosen[lo : lo + batch]
+        manual = data.manual_batch(idx)
+        real = [ds[int(e)] for e in idx]
+        firsts = np.stack([ep.observations[0] for ep in real])
+        acts = np.zeros((len(idx), max_steps), dtype=np.int64)
+        for i, ep in enumerate(real):
+            acts[i, : len(ep.actions) - 1] = ep.actions[1:]
+        im = imagine(model, manual, firsts, n=len(idx), actions=acts, seed=seed + lo, max_steps=max_steps)
+        for i, ep in enumerate(real):
+            entities = [(IDENTITIES[e.identity], e.movement, e.role) for e in ep.game.entities]
+            common = min(len(ep.observations), int(im.lengths[i]))
+            for t in range(1, common):
+                a_real, a_im = _avatar(ep.observations[t]), _avatar(im.observations[i, t])
+                if a_real is None or a_im is None:
+                    continue
+                for eid, _, _ in entities:
+                    p_real, p_im = _positions(ep.observations[t], eid), _positions(im.observations[i, t], eid)
+                    if p_real is None or p_im is None:
+                        continue
+                    dist_err += abs(int(np.abs(a_im - p_im).sum()) - int(np.abs(a_real - p_real).sum()))
+                    dist_n += 1
+            by_role = {role: (eid, mov) for eid, mov, role in entities}
+            for t in range(1, int(im.lengths[i])):
+                prev, action, r = im.observations[i, t - 1], int(im.actions[i, t]), float(im.rewards[i, t])
+                if r != 0:
+                    roles = {-1.0: ("enemy", "goal"), 0.5: ("message",), 1.0: ("goal",)}.get(r, ())
+                    reward_n += 1
+                    reward_ok += any(_near(prev, action, *by_role[role]) for role in roles)
+                if im.dones[i, t]:
+                    done_n += 1
+                    done_ok += t == max_steps or any(_near(prev, action, *by_role[role]) for role in ("enemy", "goal"))
+    return ImaginationMetrics(
+        delta_dist=dist_err / max(1, dist_n),
+        reward_precision=reward_ok / max(1, reward_n),
+        termination_precision=done_ok / max(1, done_n),
+        reward_steps=reward_n,
+        done_steps=done_n,
+        episodes=len(chosen),
+    )
+
+
+def evaluate_model(
+    model: WorldModel,
+    splits: dict[str, SplitTokens],
+    loss_episodes: int | None = None,
+    imagination_episodes: int | None = 200,
+    seed: int = 0,
+) -> dict:
+    """Table 1 and Table 2 figures for each given split."""
+    results = {}
+    for name, data in splits.items():
+        entry = {"cross_entropy": evaluate_loss(model, data, limit=loss_episodes)}
+        if imagination_episodes != 0:
+            entry["imagination"] = imagination_metrics(model, data, imagination_episodes, seed).as_dict()
+        results[name] = entry
+    return results
+
+
+__all__ = ["TEST_SPLITS", "evaluate_model", "imagination_metrics", "loss_by_prefix", "OBS_TOKENS"]

@@ -1,0 +1,17 @@
+"""Where the shipped checkpoints live inside the package."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from ..errors import LwmError
+
+CHECKPOINT_DIR = Path(__file__).resolve().parent.parent / "checkpoints"
+SHIPPED = {"emma": CHECKPOINT_DIR / "emma-lwm", "observational": CHECKPOINT_DIR / "observational"}
+
+
+def shipped_checkpoint(kind: str = "emma") -> Path:
+    path = SHIPPED.get(kind)
+    if path is None or not (path / "config.json").is_file():
+        raise LwmError(f"no shipped {kind!r} checkpoint in {CHECKPOINT_DIR}; train one with 'lwm train'")
+    return path
