@@ -73,8 +73,10 @@ def main() -> None:
     for n, rate in rates.items():
         print(f"batched N={n:<6}: {rate:>12,.0f} steps/s")
     best = rates[4096]
-    print(f"target >= {STEPS_TARGET:,} batched steps/s: {'met' if best >= STEPS_TARGET else 'MISSED'} "
-          f"({best / STEPS_TARGET:.2f}x)")
+    print(
+        f"target >= {STEPS_TARGET:,} batched steps/s: {'met' if best >= STEPS_TARGET else 'MISSED'} "
+        f"({best / STEPS_TARGET:.2f}x)"
+    )
     if args.skip_generate:
         return
     pools = DescriptionPools.generated()
@@ -85,10 +87,14 @@ def main() -> None:
     episodes = sum(s["episodes"] for s in index["splits"].values())
     observations = sum(s["observations"] for s in index["splits"].values())
     peak_mib = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-    print(f"full benchmark   : {episodes:,} episodes, {observations:,} observations in {seconds:.1f} s "
-          f"({episodes / seconds:,.0f} episodes/s); peak RSS {peak_mib:,.0f} MiB")
-    print(f"target <= {GENERATE_TARGET_S:.0f} s: {'met' if seconds <= GENERATE_TARGET_S else 'MISSED'} "
-          f"({seconds / GENERATE_TARGET_S:.2f} of the budget)")
+    print(
+        f"full benchmark   : {episodes:,} episodes, {observations:,} observations in {seconds:.1f} s "
+        f"({episodes / seconds:,.0f} episodes/s); peak RSS {peak_mib:,.0f} MiB"
+    )
+    print(
+        f"target <= {GENERATE_TARGET_S:.0f} s: {'met' if seconds <= GENERATE_TARGET_S else 'MISSED'} "
+        f"({seconds / GENERATE_TARGET_S:.2f} of the budget)"
+    )
 
 
 if __name__ == "__main__":

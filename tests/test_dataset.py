@@ -104,8 +104,12 @@ def test_cli_splits_and_generate(tmp_path):
     assert proc.returncode == 0, proc.stderr
     assert "train" in proc.stdout and "1536" in proc.stdout and "expected" not in proc.stdout
     out = tmp_path / "d"
-    proc = subprocess.run(LWM + ["data", "generate", "--out", str(out), "--max-games", "2", "--episodes-per-game", "2",
-                                 "--no-progress"], capture_output=True, text=True, timeout=120)
+    proc = subprocess.run(
+        LWM + ["data", "generate", "--out", str(out), "--max-games", "2", "--episodes-per-game", "2", "--no-progress"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert proc.returncode == 0, proc.stderr
     assert json.loads(proc.stdout)["splits"]["train"]["episodes"] == 4
 

@@ -64,8 +64,13 @@ def test_policy_returns_match_the_reference_figures():
     rng = np.random.default_rng(0)
     n = 3000
     chosen = [games[i] for i in rng.integers(len(games), size=n)]
-    expected = {"random": (-0.47, 0.1), "suicide": (-0.98, 0.05), "survive": (0.09, 0.12),
-                "get_message": (0.56, 0.12), "go_to_goal": (1.25, 0.1)}
+    expected = {
+        "random": (-0.47, 0.1),
+        "suicide": (-0.98, 0.05),
+        "survive": (0.09, 0.12),
+        "get_message": (0.56, 0.12),
+        "go_to_goal": (1.25, 0.1),
+    }
     for p, name in enumerate(POLICIES):
         ro = rollout(chosen, np.arange(n) + 10_000 * p, np.full(n, p))
         mean, tol = expected[name]

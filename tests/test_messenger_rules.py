@@ -21,9 +21,7 @@ ENEMY, MESSAGE, GOAL = range(3)
 
 
 def make_env(enemy="chaser", message="immovable", goal="immovable", max_steps=32, seed=0) -> MessengerEnv:
-    spec = GameSpec.from_triples(
-        [("dog", enemy, "enemy"), ("queen", message, "message"), ("ball", goal, "goal")]
-    )
+    spec = GameSpec.from_triples([("dog", enemy, "enemy"), ("queen", message, "message"), ("ball", goal, "goal")])
     env = MessengerEnv(spec, max_steps=max_steps)
     env.reset(seed=seed)
     return env
@@ -262,7 +260,9 @@ def test_bad_actions_are_rejected(bad):
 
 
 def test_step_before_reset():
-    spec = GameSpec.from_triples([("dog", "chaser", "enemy"), ("queen", "fleeing", "message"), ("ball", "immovable", "goal")])
+    spec = GameSpec.from_triples(
+        [("dog", "chaser", "enemy"), ("queen", "fleeing", "message"), ("ball", "immovable", "goal")]
+    )
     with pytest.raises(GameStateError):
         MessengerEnv(spec).step(0)
 

@@ -17,8 +17,15 @@ def splits():
 
 def test_counts_are_exact(splits):
     assert splits.counts() == SPLIT_SIZES
-    assert SPLIT_SIZES == {"train": 1536, "newcombo-dev": 896, "newcombo-test": 896, "newattr-dev": 204,
-                           "newattr-test": 204, "newall-dev": 856, "newall-test": 856}
+    assert SPLIT_SIZES == {
+        "train": 1536,
+        "newcombo-dev": 896,
+        "newcombo-test": 896,
+        "newattr-dev": 204,
+        "newattr-test": 204,
+        "newall-dev": 856,
+        "newall-test": 856,
+    }
 
 
 def test_no_game_is_in_two_splits(splits):

@@ -30,8 +30,18 @@ def tiny_data(tmp_path_factory):
 
 
 def args(data, out, **kw) -> TrainArgs:
-    base = dict(data=str(data), out=str(out), kind="observational", preset="tiny", steps=8, batch=4,
-                eval_every=4, eval_episodes=10, progress=False, lr=1e-3)
+    base = dict(
+        data=str(data),
+        out=str(out),
+        kind="observational",
+        preset="tiny",
+        steps=8,
+        batch=4,
+        eval_every=4,
+        eval_episodes=10,
+        progress=False,
+        lr=1e-3,
+    )
     return TrainArgs(**{**base, **kw})
 
 
@@ -64,9 +74,32 @@ def test_resume_refuses_another_model(tiny_data, tmp_path):
 def test_ddp_with_torchrun_on_two_cpu_processes(tiny_data, tmp_path):
     out = tmp_path / "ddp"
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
-    cmd = [str(VENV_BIN / "torchrun"), "--standalone", "--nproc-per-node", "2", "-m", "lwm_models.cli.main", "train",
-           "--data", str(tiny_data), "--out", str(out), "--kind", "oracle", "--preset", "tiny", "--steps", "4",
-           "--batch", "4", "--eval-every", "4", "--eval-episodes", "5", "--no-progress"]
+    cmd = [
+        str(VENV_BIN / "torchrun"),
+        "--standalone",
+        "--nproc-per-node",
+        "2",
+        "-m",
+        "lwm_models.cli.main",
+        "train",
+        "--data",
+        str(tiny_data),
+        "--out",
+        str(out),
+        "--kind",
+        "oracle",
+        "--preset",
+        "tiny",
+        "--steps",
+        "4",
+        "--batch",
+        "4",
+        "--eval-every",
+        "4",
+        "--eval-episodes",
+        "5",
+        "--no-progress",
+    ]
     proc = subprocess.run(cmd, capture_output=True, text=True, timeout=300, env=env)
     assert proc.returncode == 0, proc.stderr[-3000:]
     model, config = load_checkpoint(out / "last")

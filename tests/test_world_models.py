@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 import torch
 
+from lwm_models.data.splits import load_split
 from lwm_models.errors import ShapeError
 from lwm_models.messenger import rollout
-from lwm_models.data.splits import load_split
 from lwm_models.world.base import ManualBatch
 from lwm_models.world.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
 from lwm_models.world.imagine import imagine
@@ -35,8 +35,9 @@ def fake_manual(b: int, seed: int = 0) -> ManualBatch:
     g = torch.Generator().manual_seed(seed)
     lengths = torch.randint(5, 20, (b, 3), generator=g)
     mask = torch.arange(36)[None, None] < lengths[..., None]
-    parse = torch.stack([torch.tensor([[4, 12, 10]] * b), torch.randint(0, 3, (b, 3), generator=g),
-                         torch.tensor([[0, 1, 2]] * b)], -1)
+    parse = torch.stack(
+        [torch.tensor([[4, 12, 10]] * b), torch.randint(0, 3, (b, 3), generator=g), torch.tensor([[0, 1, 2]] * b)], -1
+    )
     return ManualBatch(torch.randn(b, 3, 36, 384, generator=g), mask, parse, torch.tensor([[4, 12, 10]] * b))
 
 
@@ -57,7 +58,9 @@ def test_reward_labels():
 
 def test_episode_blocks(episodes):
     n = int(episodes.lengths[0])
-    blocks = episode_to_blocks(episodes.observations[0, :n], episodes.actions[0, :n], episodes.rewards[0, :n], episodes.dones[0, :n])
+    blocks = episode_to_blocks(
+        episodes.observations[0, :n], episodes.actions[0, :n], episodes.rewards[0, :n], episodes.dones[0, :n]
+    )
     assert blocks.shape == (n, BLOCK)
     assert blocks[0, 0] == DUMMY_ACTION and blocks[0, -2] == 2 and blocks[0, -1] == 0
     assert blocks[-1, -1] == 1

@@ -95,8 +95,13 @@ def _add_dataclass_args(p: argparse.ArgumentParser, cls) -> None:
             p.add_argument(flag, action=argparse.BooleanOptionalAction, default=f.default)
             continue
         conv = int if "int" in kind and "float" not in kind else float if "float" in kind else str
-        p.add_argument(flag, type=conv, required=required, default=None if required else f.default,
-                       help=f"default: {f.default}" if not required else "required")
+        p.add_argument(
+            flag,
+            type=conv,
+            required=required,
+            default=None if required else f.default,
+            help=f"default: {f.default}" if not required else "required",
+        )
 
 
 def _cmd_train(args: argparse.Namespace) -> int:

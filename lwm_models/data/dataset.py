@@ -28,9 +28,9 @@ from __future__ import annotations
 
 import json
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
@@ -131,7 +131,9 @@ def generate_split(
         "games": len(games),
         "distinct_texts": len(texts),
         "mean_return_by_policy": {
-            POLICIES[p]: float(_returns(arrays)[policies == p].mean()) for p in range(len(POLICIES)) if (policies == p).any()
+            POLICIES[p]: float(_returns(arrays)[policies == p].mean())
+            for p in range(len(POLICIES))
+            if (policies == p).any()
         },
     }
 
@@ -176,9 +178,7 @@ def generate_dataset(
     out.mkdir(parents=True, exist_ok=True)
     game_splits = default_splits(split_seed)
     chosen = {s: game_splits[s][:max_games] if max_games else game_splits[s] for s in splits}
-    total = sum(
-        len(g) * (train_episodes_per_game if s == "train" else len(POLICIES)) for s, g in chosen.items()
-    )
+    total = sum(len(g) * (train_episodes_per_game if s == "train" else len(POLICIES)) for s, g in chosen.items())
     progress = progress_factory(total) if progress_factory else None
     began = time.perf_counter()
     counts = {
@@ -237,8 +237,10 @@ class TrajectoryDataset:
         except json.JSONDecodeError as exc:
             raise DatasetError(f"{index_path} is not valid JSON: {exc}") from None
         if self.index.get("format") != FORMAT or self.index.get("version") != VERSION:
-            raise DatasetError(f"{index_path}: expected {FORMAT} version {VERSION}, got "
-                               f"{self.index.get('format')} version {self.index.get('version')}")
+            raise DatasetError(
+                f"{index_path}: expected {FORMAT} version {VERSION}, got "
+                f"{self.index.get('format')} version {self.index.get('version')}"
+            )
         if split not in self.index["splits"]:
             raise DatasetError(f"split {split!r} is not in {self.root}; it has {list(self.index['splits'])}")
         self.split = split

@@ -76,7 +76,7 @@ class GameSplits:
         Path(path).write_text(json.dumps(self.to_json()))
 
     @classmethod
-    def from_json(cls, data: dict) -> "GameSplits":
+    def from_json(cls, data: dict) -> GameSplits:
         return cls(int(data["seed"]), {k: [GameSpec.from_triples(g) for g in v] for k, v in data["splits"].items()})
 
 

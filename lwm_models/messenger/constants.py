@@ -65,11 +65,7 @@ _TRAIN_GROUPS: tuple[tuple[tuple[str, ...], tuple[str, ...], tuple[str, ...]], .
 Triple = tuple[str, str, str]
 """(identity, movement, role)."""
 TRAIN_TRIPLES: frozenset[Triple] = frozenset(
-    (ident, mov, role)
-    for idents, roles, movs in _TRAIN_GROUPS
-    for ident in idents
-    for role in roles
-    for mov in movs
+    (ident, mov, role) for idents, roles, movs in _TRAIN_GROUPS for ident in idents for role in roles for mov in movs
 )
 ALL_TRIPLES: tuple[Triple, ...] = tuple(
     (ident, mov, role) for ident in IDENTITIES for mov in MOVEMENTS for role in ROLES

@@ -15,7 +15,7 @@ Games that have ended stay frozen: later actions are ignored and give reward 0.
 from __future__ import annotations
 
 import itertools
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -60,8 +60,12 @@ _CHANNEL_PERMS = np.array(CHANNEL_PERMUTATIONS, dtype=np.int64)
 
 
 def entity_moves(
-    rows: np.ndarray, cols: np.ndarray, avatar_row: np.ndarray, avatar_col: np.ndarray,
-    movement: np.ndarray, u: np.ndarray,
+    rows: np.ndarray,
+    cols: np.ndarray,
+    avatar_row: np.ndarray,
+    avatar_col: np.ndarray,
+    movement: np.ndarray,
+    u: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Half-cell (rows, cols) [N, 3] after every entity's 1-half-cell move, decided from the
     avatar's position before it moves. `u` [N, 3] are the uniform draws that pick a direction.

@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
-from typing import Iterable, Sequence
 
 from ..errors import InvalidSpecError
 from .constants import IDENTITIES, MOVEMENTS, ROLES, TRAIN_TRIPLES, Triple
@@ -51,12 +51,12 @@ class GameSpec:
             raise InvalidSpecError(f"the three identities must be distinct, got {identities}")
 
     @classmethod
-    def from_triples(cls, triples: Iterable[Sequence[str]]) -> "GameSpec":
+    def from_triples(cls, triples: Iterable[Sequence[str]]) -> GameSpec:
         """Build from (identity, movement, role) triples in any order; validates everything."""
         try:
             items = [tuple(t) for t in triples]
         except TypeError as exc:
-            raise InvalidSpecError(f"a game spec is a list of (identity, movement, role) triples: {exc}")
+            raise InvalidSpecError(f"a game spec is a list of (identity, movement, role) triples: {exc}") from None
         for t in items:
             if len(t) != 3 or not all(isinstance(x, str) for x in t):
                 raise InvalidSpecError(f"each entity is an (identity, movement, role) triple of strings, got {t!r}")

@@ -65,8 +65,10 @@ class ManualBatch:
     parse: torch.Tensor | None = None
     routed: torch.Tensor | None = None
 
-    def index(self, idx: torch.Tensor) -> "ManualBatch":
-        return ManualBatch(*(None if t is None else t[idx] for t in (self.features, self.mask, self.parse, self.routed)))
+    def index(self, idx: torch.Tensor) -> ManualBatch:
+        return ManualBatch(
+            *(None if t is None else t[idx] for t in (self.features, self.mask, self.parse, self.routed))
+        )
 
 
 @dataclass
@@ -75,7 +77,7 @@ class Conditioning:
     memory: torch.Tensor | None = None  # [B, M, H]
     memory_mask: torch.Tensor | None = None  # [B, M] True at real tokens
 
-    def index(self, idx: torch.Tensor) -> "Conditioning":
+    def index(self, idx: torch.Tensor) -> Conditioning:
         return Conditioning(*(None if t is None else t[idx] for t in (self.id_table, self.memory, self.memory_mask)))
 
 
@@ -134,8 +136,10 @@ class WorldModel(nn.Module):
         pos = torch.arange(start, start + n, device=tokens.device)
         x = self.tok_emb(tokens + self._slot_offset[pos % BLOCK])
         if cond.id_table is not None:
-            cols = _ID_COLUMNS[(start % BLOCK, n)] if n <= BLOCK else torch.as_tensor(
-                np.flatnonzero(np.isin(np.arange(start, start + n) % BLOCK, ID_SLOTS))
+            cols = (
+                _ID_COLUMNS[(start % BLOCK, n)]
+                if n <= BLOCK
+                else torch.as_tensor(np.flatnonzero(np.isin(np.arange(start, start + n) % BLOCK, ID_SLOTS)))
             )
             if len(cols):
                 ids = tokens[:, cols].clamp(0, NUM_IDS - 1)
@@ -143,9 +147,7 @@ class WorldModel(nn.Module):
                 x[:, cols] = x[:, cols] + add * (ids > 0).unsqueeze(-1).to(add.dtype)
         return self.drop(x + self.pos_emb(pos))
 
-    def hidden_states(
-        self, tokens: torch.Tensor, cond: Conditioning, cache: KVCache | None = None
-    ) -> torch.Tensor:
+    def hidden_states(self, tokens: torch.Tensor, cond: Conditioning, cache: KVCache | None = None) -> torch.Tensor:
         start = 0 if cache is None else cache.length
         x = self.embed(tokens, start, cond)
         memory_kv = self._memory_kv(cond, cache)

@@ -7,8 +7,8 @@ batch is only slicing and stacking.
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Callable, Iterator
 
 import numpy as np
 import torch
@@ -107,7 +107,9 @@ class SplitTokens:
         tokens, lengths = self.segments(episodes, starts)
         return tokens, lengths, self.manual_batch(episodes)
 
-    def full_episodes(self, batch: int, limit: int | None = None) -> Iterator[tuple[torch.Tensor, torch.Tensor, ManualBatch]]:
+    def full_episodes(
+        self, batch: int, limit: int | None = None
+    ) -> Iterator[tuple[torch.Tensor, torch.Tensor, ManualBatch]]:
         """Whole episodes in order, for evaluation; `limit` keeps an evenly spaced subset."""
         episodes = np.arange(len(self))
         if limit is not None and limit < len(episodes):

@@ -35,7 +35,9 @@ def _sha256(path: Path) -> str:
     return h.hexdigest()
 
 
-def save_checkpoint(model: WorldModel, directory: str | Path, meta: dict | None = None, dtype: torch.dtype | None = None) -> Path:
+def save_checkpoint(
+    model: WorldModel, directory: str | Path, meta: dict | None = None, dtype: torch.dtype | None = None
+) -> Path:
     """Write the model's weights (optionally cast, e.g. fp16 for shipping) and config atomically."""
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)

@@ -43,15 +43,25 @@ def run_eval(args: argparse.Namespace) -> int:
         splits[name] = data
     began = time.perf_counter()
     results = evaluate_model(model, splits, args.loss_episodes, args.imagination_episodes, args.seed)
-    record = {"checkpoint": str(args.checkpoint), "kind": kind, "steps": config.get("steps"),
-              "texts": args.texts or "dataset", "seed": args.seed, "results": results,
-              "seconds": round(time.perf_counter() - began, 1)}
+    record = {
+        "checkpoint": str(args.checkpoint),
+        "kind": kind,
+        "steps": config.get("steps"),
+        "texts": args.texts or "dataset",
+        "seed": args.seed,
+        "results": results,
+        "seconds": round(time.perf_counter() - began, 1),
+    }
     print(f"{kind} ({config.get('steps')} steps) — cross-entropy, lower is better")
     print(f"{'split':<15} {'obs':>7} {'reward':>7} {'done':>7} {'total':>7}   dDist  r-prec  t-prec")
     for name, r in results.items():
         ce = r["cross_entropy"]
         im = r.get("imagination")
-        tail = f"   {im['delta_dist']:.2f}   {im['reward_precision']:.2f}    {im['termination_precision']:.2f}" if im else ""
+        tail = (
+            f"   {im['delta_dist']:.2f}   {im['reward_precision']:.2f}    {im['termination_precision']:.2f}"
+            if im
+            else ""
+        )
         print(f"{name:<15} {ce['obs']:7.4f} {ce['reward']:7.4f} {ce['done']:7.4f} {ce['total']:7.4f}{tail}")
     if args.plot:
         curves = {name: loss_by_prefix(model, data, limit=args.loss_episodes) for name, data in splits.items()}

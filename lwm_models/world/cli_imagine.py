@@ -73,8 +73,15 @@ def run_imagine(args: argparse.Namespace) -> int:
     else:
         if args.policy not in POLICIES:
             raise LwmError(f"--policy must be one of {list(POLICIES)}")
-        im = imagine(model, batch, first, n=args.n, policy=imagined_policy(game, args.policy, args.seed),
-                     max_steps=args.max_steps, seed=args.seed)
+        im = imagine(
+            model,
+            batch,
+            first,
+            n=args.n,
+            policy=imagined_policy(game, args.policy, args.seed),
+            max_steps=args.max_steps,
+            seed=args.seed,
+        )
     if args.json:
         print(json.dumps(imagination_json(im)))
         return 0
@@ -94,7 +101,11 @@ def run_imagine(args: argparse.Namespace) -> int:
 def show(im: Imagination, i: int, render) -> None:
     conf = im.confidence()
     for t in range(int(im.lengths[i])):
-        head = "start" if t == 0 else f"step {t}: {ACTION_NAMES[im.actions[i, t]]}, reward {im.rewards[i, t]:+.1f}, confidence {conf[i, t]:.2f}"
+        if t == 0:
+            head = "start"
+        else:
+            action = ACTION_NAMES[im.actions[i, t]]
+            head = f"step {t}: {action}, reward {im.rewards[i, t]:+.1f}, confidence {conf[i, t]:.2f}"
         print(head + (" (done)" if im.dones[i, t] else ""))
         print(render(im.observations[i, t]))
 
@@ -103,12 +114,14 @@ def imagination_json(im: Imagination) -> list[dict]:
     out = []
     for i in range(len(im.lengths)):
         n = int(im.lengths[i])
-        out.append({
-            "observations": im.observations[i, :n].tolist(),
-            "actions": im.actions[i, 1:n].tolist(),
-            "rewards": im.rewards[i, 1:n].tolist(),
-            "dones": im.dones[i, 1:n].tolist(),
-            "confidence": im.confidence()[i, 1:n].round(4).tolist(),
-            "return": float(im.returns[i]),
-        })
+        out.append(
+            {
+                "observations": im.observations[i, :n].tolist(),
+                "actions": im.actions[i, 1:n].tolist(),
+                "rewards": im.rewards[i, 1:n].tolist(),
+                "dones": im.dones[i, 1:n].tolist(),
+                "confidence": im.confidence()[i, 1:n].round(4).tolist(),
+                "return": float(im.returns[i]),
+            }
+        )
     return out

@@ -22,7 +22,9 @@ TEST_SPLITS = ("newcombo-test", "newattr-test", "newall-test")
 
 
 @torch.no_grad()
-def loss_by_prefix(model: WorldModel, data: SplitTokens, batch: int = 64, limit: int | None = None) -> dict[str, list[float]]:
+def loss_by_prefix(
+    model: WorldModel, data: SplitTokens, batch: int = 64, limit: int | None = None
+) -> dict[str, list[float]]:
     """Mean cross-entropy of each block's tokens by the block's index in its episode (1..32): how
     the loss falls as the model sees more history."""
     model.eval()
@@ -91,7 +93,11 @@ class ImaginationMetrics:
 
 
 def imagination_metrics(
-    model: WorldModel, data: SplitTokens, episodes: int | None = None, seed: int = 0, batch: int = 64,
+    model: WorldModel,
+    data: SplitTokens,
+    episodes: int | None = None,
+    seed: int = 0,
+    batch: int = 64,
     max_steps: int = DEFAULT_MAX_STEPS,
 ) -> ImaginationMetrics:
     """Replay test episodes' actions in imagination from their real first observation."""

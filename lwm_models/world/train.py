@@ -77,7 +77,9 @@ def _lr_at(step: int, args: TrainArgs) -> float:
     return args.lr
 
 
-def _save_train_state(path: Path, optimizer: torch.optim.Optimizer, model: nn.Module, step: int, rng: np.random.Generator, best: float) -> None:
+def _save_train_state(
+    path: Path, optimizer: torch.optim.Optimizer, model: nn.Module, step: int, rng: np.random.Generator, best: float
+) -> None:
     """Optimizer moments by parameter name, in safetensors (no pickles), plus JSON bookkeeping."""
     names = {id(p): n for n, p in model.named_parameters()}
     tensors = {}
@@ -92,8 +94,12 @@ def _save_train_state(path: Path, optimizer: torch.optim.Optimizer, model: nn.Mo
     tmp = path / "optimizer.safetensors.tmp"
     save_file(tensors, str(tmp))
     os.replace(tmp, path / "optimizer.safetensors")
-    state = {"step": step, "rng": rng.bit_generator.state, "best_dev": best,
-             "torch_rng": torch.get_rng_state().tolist()}
+    state = {
+        "step": step,
+        "rng": rng.bit_generator.state,
+        "best_dev": best,
+        "torch_rng": torch.get_rng_state().tolist(),
+    }
     tmp = path / "train_state.json.tmp"
     tmp.write_text(json.dumps(state))
     os.replace(tmp, path / "train_state.json")
@@ -115,7 +121,9 @@ def _load_train_state(path: Path, optimizer: torch.optim.Optimizer, model: nn.Mo
 
 
 @torch.no_grad()
-def evaluate_loss(model: WorldModel, data: SplitTokens, batch: int = 64, limit: int | None = None, bf16: bool = False) -> dict[str, float]:
+def evaluate_loss(
+    model: WorldModel, data: SplitTokens, batch: int = 64, limit: int | None = None, bf16: bool = False
+) -> dict[str, float]:
     """Teacher-forced cross-entropy over whole episodes: exact per-token means of obs, reward and
     done, and their total."""
     was_training = model.training
@@ -184,8 +192,12 @@ def train(args: TrainArgs, log=print) -> dict:
             log(f"resuming {args.kind} from step {step} (best dev {best:.4f})")
     net: nn.Module = nn.parallel.DistributedDataParallel(model) if distributed else model
 
-    meta = {"preset": args.preset, "train_args": asdict(args), "data": str(args.data),
-            "text_encoder": encoder.name if encoder else None}
+    meta = {
+        "preset": args.preset,
+        "train_args": asdict(args),
+        "data": str(args.data),
+        "text_encoder": encoder.name if encoder else None,
+    }
     metrics_path = out / "metrics.jsonl"
     writer = None
     if rank == 0:
@@ -246,9 +258,19 @@ def train(args: TrainArgs, log=print) -> dict:
             bar.update(1)
             bar.set_postfix(loss=f"{np.mean(window[-50:]):.3f}")
         if step % 50 == 0:
-            record({"step": step, "loss": float(np.mean(window)), "obs": out_.obs.item(), "reward": out_.reward.item(),
-                    "done": out_.done.item(), "lr": lr, "grad_norm": grad_norm,
-                    "elapsed_s": round(time.perf_counter() - began, 1), "seed": args.seed})
+            record(
+                {
+                    "step": step,
+                    "loss": float(np.mean(window)),
+                    "obs": out_.obs.item(),
+                    "reward": out_.reward.item(),
+                    "done": out_.done.item(),
+                    "lr": lr,
+                    "grad_norm": grad_norm,
+                    "elapsed_s": round(time.perf_counter() - began, 1),
+                    "seed": args.seed,
+                }
+            )
             window = []
         out_of_time = args.max_minutes is not None and time.perf_counter() - began > 60 * args.max_minutes
         if step % args.eval_every == 0 or step == args.steps or out_of_time:
