@@ -51,7 +51,7 @@ class MessengerEnv:
         spec: the three entities of the game.
         pools: description pools (lwm_models.text.DescriptionPools) to draw the manual from;
             None uses the project's generated descriptions.
-        split: which split's pool the manual is drawn from.
+        split: which split's pool the manual is drawn from; None draws from every split's.
         max_steps: time limit in actions (the paper: 32).
 
     `reset(seed, options={"start": i})` and `step(action)` follow gymnasium; `info` holds the
@@ -62,7 +62,7 @@ class MessengerEnv:
         self,
         spec: GameSpec,
         pools: Any = None,
-        split: str = "train",
+        split: str | None = None,
         max_steps: int = DEFAULT_MAX_STEPS,
     ) -> None:
         if max_steps < 1:
