@@ -115,6 +115,17 @@ def _cmd_train(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_parser_accuracy(args: argparse.Namespace) -> int:
+    from ..text import load_description_file
+    from ..text.parser import parser_accuracy
+
+    rows = {str(path): parser_accuracy(load_description_file(path)) for path in args.texts}
+    for path, acc in rows.items():
+        print(f"{path}: {acc['descriptions']} descriptions; identity {acc['identity']:.1%}, "
+              f"movement {acc['movement']:.1%}, role {acc['role']:.1%}")
+    return 0
+
+
 def _cmd_eval(args: argparse.Namespace) -> int:
     from ..world.cli_eval import run_eval
 
@@ -173,6 +184,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", type=Path, default=None, help="write the results as JSON here")
     p.add_argument("--plot", type=Path, default=None, help="write loss against history length as PNG here")
     p.set_defaults(func=_cmd_eval)
+
+    p = sub.add_parser("parser-accuracy", help="accuracy of the offline description parser (GPTHard's router)")
+    p.add_argument("--texts", nargs="+", type=Path, required=True, help="human-written description files")
+    p.set_defaults(func=_cmd_parser_accuracy)
 
     p = sub.add_parser("imagine", help="imagine trajectories of a game with a world model")
     p.add_argument("--checkpoint", type=Path, default=None, help="checkpoint directory (default: shipped EMMA-LWM)")
