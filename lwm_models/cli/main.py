@@ -121,8 +121,10 @@ def _cmd_parser_accuracy(args: argparse.Namespace) -> int:
 
     rows = {str(path): parser_accuracy(load_description_file(path)) for path in args.texts}
     for path, acc in rows.items():
-        print(f"{path}: {acc['descriptions']} descriptions; identity {acc['identity']:.1%}, "
-              f"movement {acc['movement']:.1%}, role {acc['role']:.1%}")
+        print(
+            f"{path}: {acc['descriptions']} descriptions; identity {acc['identity']:.1%}, "
+            f"movement {acc['movement']:.1%}, role {acc['role']:.1%}"
+        )
     return 0
 
 
