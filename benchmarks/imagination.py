@@ -55,8 +55,10 @@ def main() -> None:
     manual = DescriptionPools.generated().draw("newall-test", list(game.triples), np.random.default_rng(0))
     encoder = FrozenTextEncoder() if NEEDS_TEXT[config["kind"]] else None
     batch = manual_batch(config["kind"], manual, encoder, list(game.triples))
-    print(f"model: {config['kind']} {config['config']['decoder']} ({config['parameters']:,} parameters), "
-          f"torch threads {torch.get_num_threads()}")
+    print(
+        f"model: {config['kind']} {config['config']['decoder']} ({config['parameters']:,} parameters), "
+        f"torch threads {torch.get_num_threads()}"
+    )
 
     def run(n: int, steps: int = 32, cache: bool = True) -> None:
         actions = np.random.default_rng(0).integers(5, size=(n, steps))
@@ -72,11 +74,15 @@ def main() -> None:
         steps = 32 if n == 1 else args.no_cache_steps
         slow = timed(lambda n=n, steps=steps: run(n, steps, cache=False), 1)
         fast = full if steps == 32 else timed(lambda n=n, steps=steps: run(n, steps), args.repeats)
-        print(f"batch {n:>2}, {steps:>2} steps, no cache vs cache: {slow:7.2f} s vs {fast:.2f} s "
-              f"(the cache is {slow / fast:.0f}x faster)")
+        print(
+            f"batch {n:>2}, {steps:>2} steps, no cache vs cache: {slow:7.2f} s vs {fast:.2f} s "
+            f"(the cache is {slow / fast:.0f}x faster)"
+        )
     t64 = results[64]
-    print(f"target: 64 x 32-step trajectories in <= {TARGET_S:.1f} s: {'met' if t64 <= TARGET_S else 'MISSED'} "
-          f"({t64:.2f} s)")
+    print(
+        f"target: 64 x 32-step trajectories in <= {TARGET_S:.1f} s: {'met' if t64 <= TARGET_S else 'MISSED'} "
+        f"({t64:.2f} s)"
+    )
 
 
 if __name__ == "__main__":

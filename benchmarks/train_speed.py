@@ -1,0 +1,98 @@
+"""Training speed of the CPU options, in one run: seconds per optimizer step of a world model on
+real batches (32 segments of the training split) for each variant, and the ratio to the paper's
+plain fp32 setting.
+
+    .venv/bin/python benchmarks/train_speed.py --data data/human [--preset small] [--kind emma] [--steps 12]
+
+Every variant runs in its own process, because the allocator setting (GLIBC_TUNABLES) only takes
+effect when set before Python starts. Machines here are noisy: compare the ratios of one run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+
+from lwm_models.cli.main import ALLOCATOR_TUNABLES
+
+VARIANTS = [
+    # name, allocator tunables, bf16, attention dropout (None: preset's), threads, kv_heads (None: preset's)
+    ("fp32, glibc default malloc", False, False, 0.1, 2, None),
+    ("fp32, allocator tunables", True, False, 0.1, 2, None),
+    ("+ bf16 autocast", True, True, 0.1, 2, None),
+    ("+ attention dropout 0", True, True, 0.0, 2, None),
+    ("+ multi-query attention (shipped)", True, True, 0.0, 2, 1),
+    ("shipped, 1 thread", True, True, 0.0, 1, 1),
+]
+
+CHILD = r"""
+import json, sys, time
+from dataclasses import replace
+import numpy as np, torch
+from lwm_models.world.batches import SplitTokens
+from lwm_models.world.frozen_text import FrozenTextEncoder
+from lwm_models.world.registry import NEEDS_TEXT, PRESETS, build_model
+from lwm_models.world.emma import EmmaConfig
+from lwm_models.world.train import _param_groups
+a = json.loads(sys.argv[1])
+torch.set_num_threads(a["threads"])
+base = PRESETS[a["preset"]]
+cfg = EmmaConfig(replace(base.decoder, attn_dropout=a["attn_dropout"], kv_heads=a["kv_heads"]), base.text)
+torch.manual_seed(0)
+model = build_model(a["kind"], cfg).train()
+data = SplitTokens(a["data"], "train", FrozenTextEncoder() if NEEDS_TEXT[a["kind"]] else None)
+opt = torch.optim.AdamW(_param_groups(model, 0.01), lr=1e-4)
+rng = np.random.default_rng(0)
+def step():
+    tokens, lengths, manual = data.sample(rng, 32)
+    with torch.autocast("cpu", dtype=torch.bfloat16, enabled=a["bf16"]):
+        out = model(tokens, lengths, manual)
+    opt.zero_grad(); out.loss.backward(); torch.nn.utils.clip_grad_norm_(model.parameters(), 10); opt.step()
+for _ in range(3):
+    step()
+t = time.perf_counter()
+for _ in range(a["steps"]):
+    step()
+print(json.dumps({"s_per_step": (time.perf_counter() - t) / a["steps"]}))
+"""
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--data", required=True, help="dataset directory")
+    parser.add_argument("--preset", default="small")
+    parser.add_argument("--kind", default="emma")
+    parser.add_argument("--steps", type=int, default=12, help="timed steps per variant (after 3 warm-up steps)")
+    args = parser.parse_args()
+    print(f"{args.kind} / {args.preset}, batch 32, {args.steps} timed steps per variant")
+    baseline = None
+    for name, tunables, bf16, attn_dropout, threads, kv_heads in VARIANTS:
+        env = {k: v for k, v in os.environ.items() if k != "GLIBC_TUNABLES"}
+        if tunables:
+            env["GLIBC_TUNABLES"] = ALLOCATOR_TUNABLES
+        spec = {
+            "data": args.data,
+            "preset": args.preset,
+            "kind": args.kind,
+            "steps": args.steps,
+            "bf16": bf16,
+            "attn_dropout": attn_dropout,
+            "threads": threads,
+            "kv_heads": kv_heads,
+        }
+        proc = subprocess.run(
+            [sys.executable, "-c", CHILD, json.dumps(spec)], capture_output=True, text=True, env=env, timeout=1800
+        )
+        if proc.returncode != 0:
+            print(f"{name:<36} failed: {proc.stderr.strip().splitlines()[-1]}")
+            continue
+        s = json.loads(proc.stdout.strip().splitlines()[-1])["s_per_step"]
+        baseline = baseline or s
+        print(f"{name:<36} {s:6.3f} s/step  {3600 / s:7.0f} steps/h  {baseline / s:4.2f}x")
+
+
+if __name__ == "__main__":
+    main()
