@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
-# Start the LWM system's ROS 2 nodes. The nodes are not built yet (see the ROS 2 system issue);
-# for now this sets up the environment and says so.
+# Start the LWM system: set up .venv if needed, then launch the nodes under a supervisor
+# (lwm_nodes.launcher): the Messenger environment and the LWM simulator serving /lwm/imagine on
+# the shipped EMMA-LWM. Options: ./run_nodes.sh --help. Stop with Ctrl-C.
 set -euo pipefail
 cd "$(dirname "$0")"
 scripts/setup_venv.sh
-echo "run_nodes: the ROS 2 nodes are not built yet. The core is ready: try '.venv/bin/lwm play' or '.venv/bin/lwm data splits'." >&2
-exit 1
+export ROS_AUTOMATIC_DISCOVERY_RANGE="${ROS_AUTOMATIC_DISCOVERY_RANGE:-LOCALHOST}"
+exec .venv/bin/python -m lwm_nodes.launcher "$@"

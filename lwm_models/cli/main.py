@@ -206,6 +206,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_cmd_imagine)
 
     sub.add_parser("play", help="play a Messenger game in the terminal (lwm play --help)", add_help=False)
+    sub.add_parser("ros", help="ROS 2 graph tools: nodes, topics, services, pub, echo, call (lwm ros --help)")
     return parser
 
 
@@ -236,6 +237,15 @@ def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     if argv[:1] == ["play"]:  # play has its own parser; argparse.REMAINDER would drop its options
         return _play(argv[1:])
+    if argv[:1] == ["ros"]:  # the ROS tools live with the nodes: the core never imports rclpy
+        try:
+            from lwm_nodes.ros_cli import main as ros_main
+        except ImportError as exc:
+            print(
+                f"lwm ros: error: the ROS 2 nodes are not installed ({exc}); run ./run_nodes.sh once", file=sys.stderr
+            )
+            return 2
+        return ros_main(argv[1:])
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.command == "train" and "WORLD_SIZE" not in __import__("os").environ:

@@ -36,11 +36,17 @@ from ..messenger.constants import (
 from ..messenger.render import legend, render_ascii
 
 KEY_ACTIONS: dict[str, int] = {
-    "up": UP, "w": UP,
-    "down": DOWN, "s": DOWN,
-    "left": LEFT, "a": LEFT,
-    "right": RIGHT, "d": RIGHT,
-    " ": STAY, ".": STAY, "x": STAY,
+    "up": UP,
+    "w": UP,
+    "down": DOWN,
+    "s": DOWN,
+    "left": LEFT,
+    "a": LEFT,
+    "right": RIGHT,
+    "d": RIGHT,
+    " ": STAY,
+    ".": STAY,
+    "x": STAY,
 }
 """Key name -> action. Arrow keys are named "up", "down", "left", "right" by the key readers."""
 QUIT_KEYS = frozenset({"q", "\x03", "\x04"})  # q, Ctrl-C and Ctrl-D as raw characters
@@ -237,9 +243,7 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="{0-23,none}",
         help="start positions (index into the 24 starts); 'none' (default) lets the seed choose",
     )
-    parser.add_argument(
-        "--max-steps", type=_positive_int, default=DEFAULT_MAX_STEPS, help="time limit in actions"
-    )
+    parser.add_argument("--max-steps", type=_positive_int, default=DEFAULT_MAX_STEPS, help="time limit in actions")
     parser.add_argument(
         "--texts",
         type=Path,
@@ -287,8 +291,9 @@ def play_main(args: list[str] | None = None) -> int:
         if interactive:
             color = sys.stdout.isatty() and not opts.no_color and os.environ.get("NO_COLOR") is None
             with tty_key_reader(sys.stdin.fileno()) as read_key:
-                return run_game(env, opts.seed, opts.start, read_key, write, color=color,
-                                clear=sys.stdout.isatty(), title=title)
+                return run_game(
+                    env, opts.seed, opts.start, read_key, write, color=color, clear=sys.stdout.isatty(), title=title
+                )
         return run_game(env, opts.seed, opts.start, line_key_reader(sys.stdin), write, title=title)
     except (LwmError, OSError) as exc:
         print(f"lwm play: error: {exc}", file=sys.stderr)

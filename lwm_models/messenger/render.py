@@ -65,8 +65,18 @@ _ID_LETTERS[AVATAR_WITH_MESSAGE] = AVATAR_MESSAGE_LETTER
 # ANSI foreground colours per identity (6 normal + 6 bright), so that letters stay told apart by
 # colour too; the avatar is drawn in reverse video so it stands out from every entity.
 _ANSI_IDENTITY: dict[str, str] = {
-    "airplane": "31", "mage": "32", "dog": "33", "bird": "34", "fish": "35", "scientist": "36",
-    "thief": "91", "ship": "92", "ball": "93", "robot": "94", "queen": "95", "sword": "96",
+    "airplane": "31",
+    "mage": "32",
+    "dog": "33",
+    "bird": "34",
+    "fish": "35",
+    "scientist": "36",
+    "thief": "91",
+    "ship": "92",
+    "ball": "93",
+    "robot": "94",
+    "queen": "95",
+    "sword": "96",
 }
 _ANSI_AVATAR = "1;7"  # bold, reverse video
 _ANSI_AVATAR_MESSAGE = "1;30;43"  # bold black on yellow: "carrying the message"
@@ -76,9 +86,18 @@ _ANSI_RESET = "\x1b[0m"
 
 # RGB cell colours of the PNG frames, per identity, for the avatar and for the background.
 _RGB_IDENTITY: dict[str, tuple[int, int, int]] = {
-    "airplane": (230, 25, 75), "mage": (60, 180, 75), "dog": (255, 225, 25), "bird": (0, 130, 200),
-    "fish": (245, 130, 48), "scientist": (145, 30, 180), "thief": (70, 240, 240), "ship": (240, 50, 230),
-    "ball": (210, 245, 60), "robot": (0, 128, 128), "queen": (220, 190, 255), "sword": (170, 110, 40),
+    "airplane": (230, 25, 75),
+    "mage": (60, 180, 75),
+    "dog": (255, 225, 25),
+    "bird": (0, 130, 200),
+    "fish": (245, 130, 48),
+    "scientist": (145, 30, 180),
+    "thief": (70, 240, 240),
+    "ship": (240, 50, 230),
+    "ball": (210, 245, 60),
+    "robot": (0, 128, 128),
+    "queen": (220, 190, 255),
+    "sword": (170, 110, 40),
 }
 _RGB_AVATAR = (40, 40, 40)
 _RGB_AVATAR_MESSAGE = (255, 200, 0)
@@ -293,9 +312,7 @@ def _per_frame(values: Sequence | np.ndarray | None, t: int, name: str) -> list 
         return [None] + seq[1:]
     if len(seq) == t - 1:
         return [None] + seq
-    raise ShapeError(
-        f"{name} must have {t} (the first a dummy) or {t - 1} entries for {t} frames, got {len(seq)}"
-    )
+    raise ShapeError(f"{name} must have {t} (the first a dummy) or {t - 1} entries for {t} frames, got {len(seq)}")
 
 
 def _caption(i: int, actions: list | None, rewards: list | None) -> str:

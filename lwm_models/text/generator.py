@@ -40,29 +40,65 @@ IDENTITY_SYNONYMS: dict[str, tuple[str, ...]] = {
 
 ROLE_NOUNS: dict[str, tuple[str, ...]] = {
     "enemy": ("enemy", "deadly enemy", "lethal opponent", "deadly adversary", "dangerous foe", "killer"),
-    "message": ("message", "secret document", "crucial message", "important note", "classified letter",
-                "vital information"),
+    "message": (
+        "message",
+        "secret document",
+        "crucial message",
+        "important note",
+        "classified letter",
+        "vital information",
+    ),
     "goal": ("goal", "objective", "destination", "receiver", "recipient", "final target"),
 }
 """Noun phrases naming a role, used after "the" ("the deadly adversary")."""
 
 ROLE_PREDICATES: dict[str, tuple[str, ...]] = {
-    "enemy": ("will kill you on contact", "is deadly to touch", "must never be touched",
-              "kills you if you bump into it"),
-    "message": ("carries the secret you must grab", "holds the note you need", "has the document to pick up",
-                "is the item you must collect first"),
-    "goal": ("is where the message must go", "is where you deliver the message", "receives the message",
-             "is the place to drop off the message"),
+    "enemy": (
+        "will kill you on contact",
+        "is deadly to touch",
+        "must never be touched",
+        "kills you if you bump into it",
+    ),
+    "message": (
+        "carries the secret you must grab",
+        "holds the note you need",
+        "has the document to pick up",
+        "is the item you must collect first",
+    ),
+    "goal": (
+        "is where the message must go",
+        "is where you deliver the message",
+        "receives the message",
+        "is the place to drop off the message",
+    ),
 }
 """Verb phrases stating a role, used after a subject ("the jet will kill you on contact")."""
 
 MOVEMENT_CLAUSES: dict[str, tuple[str, ...]] = {
-    "chaser": ("comes toward you", "is chasing you", "pursues you", "keeps approaching you", "hunts you down",
-               "follows you around"),
-    "fleeing": ("runs away from you", "is fleeing", "avoids you", "keeps moving away", "escapes from you",
-                "tries to get away"),
-    "immovable": ("stays put", "never moves", "is stationary", "does not move", "remains still",
-                  "is rooted to the spot"),
+    "chaser": (
+        "comes toward you",
+        "is chasing you",
+        "pursues you",
+        "keeps approaching you",
+        "hunts you down",
+        "follows you around",
+    ),
+    "fleeing": (
+        "runs away from you",
+        "is fleeing",
+        "avoids you",
+        "keeps moving away",
+        "escapes from you",
+        "tries to get away",
+    ),
+    "immovable": (
+        "stays put",
+        "never moves",
+        "is stationary",
+        "does not move",
+        "remains still",
+        "is rooted to the spot",
+    ),
 }
 """Verb phrases stating a movement, used after a subject ("the jet pursues you")."""
 
@@ -75,9 +111,7 @@ MOVEMENT_ADJECTIVES: dict[str, tuple[str, ...]] = {
 
 ROLE_PHRASES: dict[str, tuple[str, ...]] = {r: ROLE_NOUNS[r] + ROLE_PREDICATES[r] for r in ROLES}
 """Every phrase that states a role (nouns and predicates), for a parser."""
-MOVEMENT_PHRASES: dict[str, tuple[str, ...]] = {
-    m: MOVEMENT_CLAUSES[m] + MOVEMENT_ADJECTIVES[m] for m in MOVEMENTS
-}
+MOVEMENT_PHRASES: dict[str, tuple[str, ...]] = {m: MOVEMENT_CLAUSES[m] + MOVEMENT_ADJECTIVES[m] for m in MOVEMENTS}
 """Every phrase that states a movement (clauses and adjectives), for a parser."""
 
 # Sentence templates. Slots: {i} identity synonym after "the"; {ai} the synonym with "a"/"an";
@@ -178,12 +212,12 @@ def add_typos(text: str, rng: np.random.Generator, rate: float) -> str:
             pairs = [j for j in letters[:-1] if word[j + 1].isalpha() and word[j + 1] != word[j]]
             if pairs:
                 j = pairs[int(rng.integers(len(pairs)))]
-                words[k] = word[:j] + word[j + 1] + word[j] + word[j + 2:]
+                words[k] = word[:j] + word[j + 1] + word[j] + word[j + 2 :]
                 continue
             kind = 2  # nothing to swap ("zzz"): double a letter instead
         j = letters[int(rng.integers(len(letters)))]
         if kind == 1:
-            words[k] = word[:j] + word[j + 1:]
+            words[k] = word[:j] + word[j + 1 :]
         else:
-            words[k] = word[: j + 1] + word[j] + word[j + 1:]
+            words[k] = word[: j + 1] + word[j] + word[j + 1 :]
     return " ".join(words)

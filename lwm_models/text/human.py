@@ -54,9 +54,7 @@ def load_description_file(path: str | Path) -> dict[Triple, list[str]]:
     out: dict[Triple, dict[str, None]] = {}
     for ident, roles in data.items():
         if ident not in IDENTITIES:
-            raise TextFileError(
-                f"{path}: unknown identity {ident!r} at the top level; known: {sorted(IDENTITIES)}"
-            )
+            raise TextFileError(f"{path}: unknown identity {ident!r} at the top level; known: {sorted(IDENTITIES)}")
         roles = _expect_object(path, roles, ident, "roles to movements")
         for role, movements in roles.items():
             if role not in ROLES:
@@ -68,9 +66,7 @@ def load_description_file(path: str | Path) -> dict[Triple, list[str]]:
                     known = [*MOVEMENTS, UNKNOWN_MOVEMENT]
                     raise TextFileError(f"{path}: unknown movement {mov!r} at {where}; known: {known}")
                 if not isinstance(texts, list):
-                    raise TextFileError(
-                        f"{path}: {where} must be a list of descriptions, got {type(texts).__name__}"
-                    )
+                    raise TextFileError(f"{path}: {where} must be a list of descriptions, got {type(texts).__name__}")
                 for k, text in enumerate(texts):
                     if not isinstance(text, str) or not text.strip():
                         raise TextFileError(f"{path}: {where}[{k}] must be a non-empty string, got {text!r}")

@@ -136,13 +136,12 @@ class DescriptionPools:
     @classmethod
     def generated(cls, seed: int = 0, typo_rate: float = 0.0) -> DescriptionPools:
         """Pools of the project's own generated descriptions."""
-        return cls({split: dict(by_triple) for split, by_triple in _generated_pools(seed).items()},
-                   "generated", typo_rate)
+        return cls(
+            {split: dict(by_triple) for split, by_triple in _generated_pools(seed).items()}, "generated", typo_rate
+        )
 
     @classmethod
-    def from_files(
-        cls, paths: Iterable[str | Path], seed: int = 0, typo_rate: float = 0.0
-    ) -> DescriptionPools:
+    def from_files(cls, paths: Iterable[str | Path], seed: int = 0, typo_rate: float = 0.0) -> DescriptionPools:
         """Pools of human-written descriptions; empty (split, triple) pools come from the generator.
 
         A generated fallback text that also occurs in the human-written pools is left out, so the
@@ -184,14 +183,11 @@ class DescriptionPools:
         found = by_triple.get(tuple(triple))  # type: ignore[arg-type]
         if not found:
             raise PoolError(
-                f"split {split!r} has no descriptions of {tuple(triple)}: "
-                "the games of that split never contain it"
+                f"split {split!r} has no descriptions of {tuple(triple)}: the games of that split never contain it"
             )
         return found
 
-    def draw(
-        self, split: str | None, triples: Sequence[Sequence[str]], rng: np.random.Generator
-    ) -> list[str]:
+    def draw(self, split: str | None, triples: Sequence[Sequence[str]], rng: np.random.Generator) -> list[str]:
         """One description per triple, uniformly from its pool in `split`, aligned with `triples`
         (the caller shuffles the manual's order); `split=None` draws from every split's pools.
         Typos are added here when typo_rate > 0."""
@@ -205,8 +201,7 @@ class DescriptionPools:
     def summary(self) -> dict[str, int]:
         """Number of distinct descriptions per split."""
         return {
-            split: len({t for texts in by_triple.values() for t in texts})
-            for split, by_triple in self.pools.items()
+            split: len({t for texts in by_triple.values() for t in texts}) for split, by_triple in self.pools.items()
         }
 
 

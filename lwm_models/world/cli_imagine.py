@@ -83,7 +83,7 @@ def run_imagine(args: argparse.Namespace) -> int:
             seed=args.seed,
         )
     if args.json:
-        print(json.dumps(imagination_json(im)))
+        print(json.dumps(im.to_json()))
         return 0
     print(f"game {args.split}[{args.index}]: {game}")
     print("manual:")
@@ -108,20 +108,3 @@ def show(im: Imagination, i: int, render) -> None:
             head = f"step {t}: {action}, reward {im.rewards[i, t]:+.1f}, confidence {conf[i, t]:.2f}"
         print(head + (" (done)" if im.dones[i, t] else ""))
         print(render(im.observations[i, t]))
-
-
-def imagination_json(im: Imagination) -> list[dict]:
-    out = []
-    for i in range(len(im.lengths)):
-        n = int(im.lengths[i])
-        out.append(
-            {
-                "observations": im.observations[i, :n].tolist(),
-                "actions": im.actions[i, 1:n].tolist(),
-                "rewards": im.rewards[i, 1:n].tolist(),
-                "dones": im.dones[i, 1:n].tolist(),
-                "confidence": im.confidence()[i, 1:n].round(4).tolist(),
-                "return": float(im.returns[i]),
-            }
-        )
-    return out

@@ -51,9 +51,29 @@ class Imagination:
     def returns(self) -> np.ndarray:
         return self.rewards.sum(1)
 
+    def to_json(self) -> list[dict]:
+        """Each trajectory as plain lists (observations include the first, real one)."""
+        conf = self.confidence()
+        out = []
+        for i in range(len(self.lengths)):
+            n = int(self.lengths[i])
+            out.append(
+                {
+                    "observations": self.observations[i, :n].tolist(),
+                    "actions": self.actions[i, 1:n].tolist(),
+                    "rewards": self.rewards[i, 1:n].tolist(),
+                    "dones": self.dones[i, 1:n].tolist(),
+                    "confidence": conf[i, 1:n].round(4).tolist(),
+                    "return": float(self.returns[i]),
+                }
+            )
+        return out
+
     def confidence(self) -> np.ndarray:
-        """[N, T + 1] per-step confidence: the product of the step's token probabilities."""
-        return np.where(self.token_probs > 0, self.token_probs, 1.0).prod(-1)
+        """[N, T + 1] per-step confidence: the geometric mean of the step's 14 token probabilities
+        (1 at index 0 and past the end). A product would vanish for any step with many tokens."""
+        p = np.where(self.token_probs > 0, self.token_probs, 1.0)
+        return np.exp(np.log(p).mean(-1))
 
 
 def _check_inputs(first_obs: np.ndarray, n: int) -> np.ndarray:

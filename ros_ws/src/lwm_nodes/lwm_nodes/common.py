@@ -1,0 +1,112 @@
+"""What every node shares: QoS profiles, JSON topics with validation and error reports, and a
+spin loop that shuts down cleanly on SIGINT/SIGTERM."""
+
+from __future__ import annotations
+
+import os
+import signal
+import sys
+import threading
+from collections.abc import Callable
+from pathlib import Path
+
+import rclpy
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.signals import SignalHandlerOptions
+from std_msgs.msg import String
+
+from lwm_models import messages
+
+# Manuals and statuses are state, not events: a node that starts late must still get the latest.
+LATCHED = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=1,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.TRANSIENT_LOCAL,
+)
+EVENTS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=50,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.VOLATILE,
+)
+ERRORS_TOPIC = "/lwm/errors"
+FASTDDS_PROFILE = Path(__file__).resolve().parents[3] / "fastdds_profile.xml"
+
+
+def ros_environment() -> None:
+    """Defaults every process of the system shares, set before rclpy starts: discovery on this
+    machine only unless the user says otherwise, and the fast-discovery Fast DDS profile."""
+    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    if FASTDDS_PROFILE.is_file():
+        os.environ.setdefault("FASTRTPS_DEFAULT_PROFILES_FILE", str(FASTDDS_PROFILE))
+
+
+class JsonNode(Node):
+    """A node that speaks validated JSON on std_msgs/String and reports bad input on /lwm/errors."""
+
+    def __init__(self, name: str) -> None:
+        super().__init__(name)
+        self._errors = self.create_publisher(String, ERRORS_TOPIC, EVENTS)
+
+    def json_publisher(self, topic: str, kind: str, qos: QoSProfile) -> Callable[[dict], None]:
+        pub = self.create_publisher(String, topic, qos)
+
+        def publish(payload: dict) -> None:
+            pub.publish(String(data=messages.dump(kind, payload)))
+
+        return publish
+
+    def json_subscription(self, topic: str, kind: str, handler: Callable[[dict], None], qos: QoSProfile):
+        def callback(msg: String) -> None:
+            try:
+                payload = messages.parse(kind, msg.data)
+                handler(payload)
+            except Exception as exc:  # a bad message must never take the node down
+                self.report_error(topic, exc, msg.data)
+
+        return self.create_subscription(String, topic, callback, qos)
+
+    def report_error(self, where: str, exc: Exception, payload: str = "") -> None:
+        text = f"{type(exc).__name__}: {exc}" if not isinstance(exc, messages.MessageError) else str(exc)
+        self.get_logger().error(f"{where}: {text}")
+        self._errors.publish(
+            String(
+                data=messages.dump(
+                    "error",
+                    {"node": self.get_name(), "where": where, "error": text[:2000], "payload_excerpt": payload[:500]},
+                )
+            )
+        )
+
+
+def run(make_node: Callable[[], Node]) -> int:
+    """Create the node, print READY, spin until SIGINT/SIGTERM, then shut down in order.
+
+    rclpy's own signal handlers are off: they race with an early signal; an Event set by our
+    handlers ends the spin loop instead (the pattern measured in shared/docs/ros2-from-pypi.md).
+    """
+    stop = threading.Event()
+    ros_environment()
+    rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    node = None
+    executor = SingleThreadedExecutor()
+    try:
+        node = make_node()
+        executor.add_node(node)
+        print(f"READY {node.get_name()}", flush=True)
+        while not stop.is_set():
+            executor.spin_once(timeout_sec=0.1)
+    except Exception as exc:
+        print(f"fatal: {type(exc).__name__}: {exc}", file=sys.stderr, flush=True)
+        return 1
+    finally:
+        executor.shutdown()
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return 0

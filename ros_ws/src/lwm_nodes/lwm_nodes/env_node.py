@@ -1,0 +1,80 @@
+"""Messenger environment node: the real game.
+
+Publishes /env/state after every reset and step and the game's manual on /env/manual (latched);
+serves /env/reset and /env/step (lwm_interfaces/srv/Json: JSON in, JSON out).
+"""
+
+from __future__ import annotations
+
+import json
+
+from lwm_interfaces.srv import Json
+
+from lwm_models import messages
+from lwm_models.messenger.session import GameSession
+from lwm_nodes.common import LATCHED, JsonNode, run
+
+
+class EnvNode(JsonNode):
+    def __init__(self) -> None:
+        super().__init__("messenger_env")
+        split = self.declare_parameter("split", "newall-test").value
+        index = self.declare_parameter("index", 0).value
+        seed = self.declare_parameter("seed", 0).value
+        max_steps = self.declare_parameter("max_steps", 32).value
+        texts = self.declare_parameter("texts", "").value  # comma-separated description files
+        pools = None
+        if texts:
+            from lwm_models.text import DescriptionPools
+
+            pools = DescriptionPools.from_files(texts.split(","))
+        self.session = GameSession(split, index, pools, max_steps)
+        self.publish_state = self.json_publisher("/env/state", "state", LATCHED)
+        self.publish_manual = self.json_publisher("/env/manual", "manual", LATCHED)
+        self.create_service(Json, "/env/reset", self.on_reset)
+        self.create_service(Json, "/env/step", self.on_step)
+        self._announce(self.session.reset(seed))
+        self.get_logger().info(f"serving {split}[{index}]: {self.session.env.spec}")
+
+    def _announce(self, state: dict) -> None:
+        self.publish_state(state)
+        self.publish_manual(self.session.manual())
+
+    def _serve(self, where: str, request: str, act) -> str:
+        try:
+            payload = json.loads(request or "{}")
+            if not isinstance(payload, dict):
+                raise messages.MessageError("the request must be a JSON object")
+            state = act(payload)
+            return json.dumps({"ok": True, "state": messages.validate("state", {"version": 1, **state})})
+        except Exception as exc:
+            self.report_error(where, exc, request)
+            return json.dumps({"ok": False, "error": str(exc)})
+
+    def on_reset(self, req, res):
+        def act(p):
+            state = self.session.reset(int(p.get("seed", 0)), p.get("split"), p.get("index"))
+            self._announce(state)
+            return state
+
+        res.response = self._serve("/env/reset", req.request, act)
+        return res
+
+    def on_step(self, req, res):
+        def act(p):
+            if "action" not in p:
+                raise messages.MessageError('a step request is {"action": 0-4}')
+            state = self.session.step(p["action"])
+            self.publish_state(state)
+            return state
+
+        res.response = self._serve("/env/step", req.request, act)
+        return res
+
+
+def main() -> int:
+    return run(EnvNode)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,163 @@
+"""The system's launcher (there is no `ros2 launch` from PyPI): a small supervisor.
+
+It starts each node as its own process, waits until each prints READY, prefixes and stores every
+node's output (logs/<node>.log), forwards SIGINT/SIGTERM to the nodes, restarts a node that dies
+(up to --max-restarts), and reports each node's exit code at the end.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from lwm_nodes.common import ros_environment
+
+
+@dataclass
+class NodeSpec:
+    name: str
+    module: str
+    params: dict[str, str] = field(default_factory=dict)
+
+    def command(self) -> list[str]:
+        cmd = [sys.executable, "-m", self.module]
+        if self.params:
+            cmd.append("--ros-args")
+            for k, v in self.params.items():
+                cmd += ["-p", f"{k}:={v}"]
+        return cmd
+
+
+class Supervised:
+    def __init__(self, spec: NodeSpec, log_dir: Path, echo: bool) -> None:
+        self.spec = spec
+        self.log_path = log_dir / f"{spec.name}.log"
+        self.echo = echo
+        self.ready = threading.Event()
+        self.restarts = 0
+        self.proc: subprocess.Popen | None = None
+        self.exit_codes: list[int] = []
+
+    def start(self) -> None:
+        self.ready.clear()
+        self.proc = subprocess.Popen(
+            self.spec.command(),
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+            bufsize=1,
+            start_new_session=True,  # our signal handler forwards; a terminal's ^C must not hit twice
+        )
+        threading.Thread(target=self._pump, args=(self.proc,), daemon=True).start()
+
+    def _pump(self, proc: subprocess.Popen) -> None:
+        with open(self.log_path, "a") as log:
+            for line in proc.stdout:
+                stamped = f"[{self.spec.name}] {line.rstrip()}"
+                log.write(f"{time.strftime('%H:%M:%S')} {stamped}\n")
+                log.flush()
+                if line.startswith("READY"):
+                    self.ready.set()
+                if self.echo:
+                    print(stamped, flush=True)
+
+    def signal(self, sig: int) -> None:
+        if self.proc and self.proc.poll() is None:
+            self.proc.send_signal(sig)
+
+
+def default_nodes(checkpoint: str, split: str, index: int, seed: int) -> list[NodeSpec]:
+    return [
+        NodeSpec("env", "lwm_nodes.env_node", {"split": split, "index": str(index), "seed": str(seed)}),
+        NodeSpec("simulator", "lwm_nodes.simulator_node", {"checkpoint": checkpoint} if checkpoint else {}),
+    ]
+
+
+def supervise(
+    nodes: list[NodeSpec],
+    log_dir: Path,
+    ready_timeout: float,
+    max_restarts: int,
+    echo: bool,
+    run_for: float | None = None,
+) -> int:
+    log_dir.mkdir(parents=True, exist_ok=True)
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    procs = [Supervised(n, log_dir, echo) for n in nodes]
+    for p in procs:
+        p.start()
+    for p in procs:
+        if not p.ready.wait(ready_timeout):
+            print(
+                f"launcher: {p.spec.name} did not become ready in {ready_timeout:.0f} s; see {p.log_path}",
+                file=sys.stderr,
+            )
+            stop.set()
+            break
+    else:
+        print(f"launcher: all {len(procs)} nodes ready (logs in {log_dir})", flush=True)
+    began = time.monotonic()
+    while not stop.is_set():
+        if run_for is not None and time.monotonic() - began > run_for:
+            break
+        for p in procs:
+            code = p.proc.poll()
+            if code is not None:
+                p.exit_codes.append(code)
+                if p.restarts >= max_restarts:
+                    print(f"launcher: {p.spec.name} exited with {code}; no restarts left", file=sys.stderr)
+                    stop.set()
+                    break
+                p.restarts += 1
+                print(
+                    f"launcher: {p.spec.name} exited with {code}; restart {p.restarts}/{max_restarts}",
+                    file=sys.stderr,
+                    flush=True,
+                )
+                p.start()
+        time.sleep(0.2)
+    for p in procs:
+        p.signal(signal.SIGTERM)
+    deadline = time.monotonic() + 10
+    worst = 0
+    for p in procs:
+        try:
+            code = p.proc.wait(max(0.1, deadline - time.monotonic()))
+        except subprocess.TimeoutExpired:
+            p.proc.kill()
+            code = p.proc.wait()
+        p.exit_codes.append(code)
+        print(f"launcher: {p.spec.name} exit code {code} (restarts: {p.restarts})", flush=True)
+        worst = worst or (code if code not in (0, -signal.SIGTERM) else 0)
+    return worst
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="run_nodes.sh", description="Start the LWM system's nodes.")
+    parser.add_argument("--checkpoint", default="", help="world model for the simulator (default: shipped EMMA-LWM)")
+    parser.add_argument("--split", default="newall-test", help="split of the game the environment runs")
+    parser.add_argument("--index", type=int, default=0, help="game index in the split")
+    parser.add_argument("--seed", type=int, default=0, help="episode seed")
+    parser.add_argument("--log-dir", type=Path, default=Path("logs"), help="where each node's log goes")
+    parser.add_argument("--ready-timeout", type=float, default=120.0)
+    parser.add_argument("--max-restarts", type=int, default=3)
+    parser.add_argument("--quiet", action="store_true", help="do not echo the nodes' output")
+    parser.add_argument("--run-for", type=float, default=None, help="stop after this many seconds (demos, tests)")
+    args = parser.parse_args(argv)
+    ros_environment()
+    os.environ.setdefault("ROS_LOG_DIR", str(args.log_dir.resolve() / "ros"))
+    nodes = default_nodes(args.checkpoint, args.split, args.index, args.seed)
+    return supervise(nodes, args.log_dir, args.ready_timeout, args.max_restarts, not args.quiet, args.run_for)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,165 @@
+"""`lwm ros ...`: what ROS users do with the `ros2` command, which PyPI's ROS 2 does not ship.
+
+    lwm ros nodes | topics | services
+    lwm ros pub TOPIC JSON|@FILE [--kind manual] [--latched] [--wait 1.0]
+    lwm ros echo TOPIC [--count N] [--timeout S] [--latched]
+    lwm ros call SERVICE JSON|@FILE [--type Imagine|Json] [--timeout S]
+
+Discovery stays on this machine unless ROS_AUTOMATIC_DISCOVERY_RANGE says otherwise.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import threading
+import time
+from pathlib import Path
+
+import rclpy
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from std_msgs.msg import String
+
+from lwm_models import messages
+from lwm_nodes.common import EVENTS, LATCHED, ros_environment
+
+
+def _payload(arg: str) -> str:
+    text = Path(arg[1:]).read_text() if arg.startswith("@") else arg
+    json.loads(text)  # a clear error before anything is sent
+    return text
+
+
+class BackgroundSpin:
+    """Spin one executor in a thread (rclpy's spin_until_future_complete busy-loops), stopping
+    it before the node is destroyed: destroying a node under a spinning thread aborts."""
+
+    def __init__(self, node: Node) -> None:
+        self.executor = SingleThreadedExecutor()
+        self.executor.add_node(node)
+        self.stop = threading.Event()
+        self.thread = threading.Thread(target=self._loop, daemon=True)
+        self.thread.start()
+
+    def _loop(self) -> None:
+        while not self.stop.is_set():
+            self.executor.spin_once(timeout_sec=0.05)
+
+    def close(self) -> None:
+        self.stop.set()
+        self.thread.join()
+        self.executor.shutdown()
+
+
+def cmd_graph(node: Node, what: str, settle: float) -> int:
+    time.sleep(settle)  # let discovery find the others
+    if what == "nodes":
+        rows = sorted(f"{ns.rstrip('/')}/{name}" for name, ns in node.get_node_names_and_namespaces())
+        rows = [r for r in rows if not r.endswith(node.get_name())]
+    elif what == "topics":
+        rows = [f"{name} [{', '.join(types)}]" for name, types in sorted(node.get_topic_names_and_types())]
+    else:
+        rows = [f"{name} [{', '.join(types)}]" for name, types in sorted(node.get_service_names_and_types())]
+    print("\n".join(rows))
+    return 0
+
+
+def cmd_pub(node: Node, args) -> int:
+    text = _payload(args.payload)
+    if args.kind:
+        messages.parse(args.kind, text)
+    pub = node.create_publisher(String, args.topic, LATCHED if args.latched else EVENTS)
+    deadline = time.monotonic() + args.wait
+    while pub.get_subscription_count() == 0 and time.monotonic() < deadline:
+        time.sleep(0.02)
+    pub.publish(String(data=text))
+    # Reliable delivery needs the publisher alive until the sample is acknowledged.
+    time.sleep(min(0.5, args.wait))
+    print(f"published to {args.topic} ({pub.get_subscription_count()} subscriber(s))")
+    return 0
+
+
+def cmd_echo(node: Node, args) -> int:
+    got = []
+    done = threading.Event()
+
+    def callback(msg: String) -> None:
+        print(msg.data, flush=True)
+        got.append(msg.data)
+        if args.count and len(got) >= args.count:
+            done.set()
+
+    node.create_subscription(String, args.topic, callback, LATCHED if args.latched else EVENTS)
+    done.wait(args.timeout if args.timeout > 0 else None)
+    return 0 if got or not args.count else 1
+
+
+def cmd_call(node: Node, args) -> int:
+    from lwm_interfaces.srv import Imagine, Json
+
+    srv_type = {"Imagine": Imagine, "Json": Json}[args.type]
+    client = node.create_client(srv_type, args.service)
+    if not client.wait_for_service(timeout_sec=args.timeout):
+        print(f"lwm ros: error: service {args.service} is not available", file=sys.stderr)
+        return 2
+    request = srv_type.Request(request=_payload(args.payload))
+    response = client.call(request, timeout_sec=args.timeout)
+    if response is None:
+        print(f"lwm ros: error: {args.service} did not answer within {args.timeout} s", file=sys.stderr)
+        return 2
+    print(response.response)
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="lwm ros", description="ROS 2 graph tools for the LWM system")
+    sub = p.add_subparsers(dest="cmd", required=True)
+    for what in ("nodes", "topics", "services"):
+        s = sub.add_parser(what, help=f"list the graph's {what}")
+        s.add_argument("--settle", type=float, default=1.0, help="seconds to wait for discovery")
+    s = sub.add_parser("pub", help="publish one JSON message")
+    s.add_argument("topic")
+    s.add_argument("payload", help="JSON text, or @FILE")
+    s.add_argument("--kind", default=None, help="validate against msgs_json/<kind>.schema.json first")
+    s.add_argument("--latched", action="store_true", help="transient-local QoS (for /feedback/manual)")
+    s.add_argument("--wait", type=float, default=2.0, help="seconds to wait for a subscriber")
+    s = sub.add_parser("echo", help="print the messages of a topic")
+    s.add_argument("topic")
+    s.add_argument("--count", type=int, default=0, help="stop after N messages (0: until timeout)")
+    s.add_argument("--timeout", type=float, default=10.0, help="seconds (0: forever)")
+    s.add_argument("--latched", action="store_true", help="transient-local QoS, to get the last latched message")
+    s = sub.add_parser("call", help="call a JSON service")
+    s.add_argument("service")
+    s.add_argument("payload", help="JSON text, or @FILE")
+    s.add_argument("--type", choices=["Imagine", "Json"], default=None, help="default: Imagine for /lwm/imagine")
+    s.add_argument("--timeout", type=float, default=30.0)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    if getattr(args, "type", "x") is None:
+        args.type = "Imagine" if args.service.endswith("imagine") else "Json"
+    ros_environment()
+    rclpy.init()
+    node = rclpy.create_node(f"lwm_cli_{int(time.time() * 1000) % 100000}")
+    spinner = BackgroundSpin(node)
+    try:
+        if args.cmd in ("nodes", "topics", "services"):
+            return cmd_graph(node, args.cmd, args.settle)
+        return {"pub": cmd_pub, "echo": cmd_echo, "call": cmd_call}[args.cmd](node, args)
+    except (OSError, ValueError, messages.MessageError) as exc:
+        print(f"lwm ros: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 130
+    finally:
+        spinner.close()
+        node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

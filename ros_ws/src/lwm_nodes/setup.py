@@ -1,0 +1,20 @@
+from setuptools import setup
+
+setup(
+    name="lwm_nodes",
+    version="0.1.0",
+    packages=["lwm_nodes"],
+    data_files=[
+        ("share/ament_index/resource_index/packages", ["resource/lwm_nodes"]),
+        ("share/lwm_nodes", ["package.xml"]),
+    ],
+    install_requires=["setuptools"],
+    description="Thin rclpy nodes over lwm_models",
+    license="MIT",
+    entry_points={
+        "console_scripts": [
+            "lwm_env_node = lwm_nodes.env_node:main",
+            "lwm_simulator_node = lwm_nodes.simulator_node:main",
+        ]
+    },
+)

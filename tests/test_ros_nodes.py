@@ -1,0 +1,162 @@
+"""The ROS 2 nodes across real processes: the launcher starts the environment and simulator nodes
+(on the shipped EMMA-LWM), and the `lwm ros` command line (its own process) talks to them over
+Fast DDS on localhost."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+pytest.importorskip("rclpy")
+pytest.importorskip("lwm_interfaces")
+
+
+MANUAL = [
+    "the plane is the deadly enemy and it chases you.",
+    "the ball has the secret message and runs away from you.",
+    "the robot is the goal and never moves.",
+]
+OBS = [[2, 2, 7], [10, 7, 2], [11, 7, 7], [15, 2, 2]]
+
+
+@pytest.fixture(scope="module")
+def system(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("ros")
+    env = {
+        **os.environ,
+        "ROS_DOMAIN_ID": str(1 + os.getpid() % 100),
+        "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST",
+        "ROS_LOG_DIR": str(tmp / "roslog"),
+    }
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "lwm_nodes.launcher", "--log-dir", str(tmp / "logs"), "--quiet", "--max-restarts", "2"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        env=env,
+    )
+    deadline = time.monotonic() + 120
+    for line in proc.stdout:
+        if "all 2 nodes ready" in line:
+            break
+        if time.monotonic() > deadline:
+            break
+    assert proc.poll() is None, "launcher died"
+    yield {"env": env, "tmp": tmp, "proc": proc}
+    proc.send_signal(signal.SIGINT)
+    out, _ = proc.communicate(timeout=30)
+    assert proc.returncode == 0, out
+
+
+def lwm_ros(system, *args: str, timeout: float = 60) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-m", "lwm_models.cli.main", "ros", *args],
+        capture_output=True,
+        text=True,
+        env=system["env"],
+        timeout=timeout,
+    )
+
+
+def call(system, service: str, payload: dict | str) -> dict:
+    text = payload if isinstance(payload, str) else json.dumps(payload)
+    proc = lwm_ros(system, "call", service, text)
+    assert proc.returncode == 0, proc.stderr
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+def status(system) -> dict:
+    proc = lwm_ros(system, "echo", "/lwm/status", "--latched", "--count", "1", "--timeout", "10")
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+def wait_for(predicate, timeout: float = 15.0):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        value = predicate()
+        if value:
+            return value
+        time.sleep(0.3)
+    return predicate()
+
+
+def test_graph_lists_the_nodes_and_services(system):
+    nodes = lwm_ros(system, "nodes").stdout.split()
+    assert "/messenger_env" in nodes and "/lwm_simulator" in nodes
+    services = lwm_ros(system, "services").stdout
+    assert "/lwm/imagine [lwm_interfaces/srv/Imagine]" in services and "/env/step" in services
+
+
+def test_imagine_uses_the_environment_manual_then_the_feedback(system):
+    first = call(
+        system, "/lwm/imagine", {"version": 1, "observation": OBS, "actions": [[1, 1, 3]], "max_steps": 3, "seed": 5}
+    )
+    assert first["ok"] and len(first["trajectories"]) == 1
+    assert len(first["trajectories"][0]["observations"]) >= 2
+    env_manual = first["manual"]
+    assert env_manual != MANUAL
+    pub = lwm_ros(
+        system,
+        "pub",
+        "/feedback/manual",
+        json.dumps({"version": 1, "descriptions": MANUAL, "source": "human"}),
+        "--latched",
+        "--kind",
+        "manual",
+    )
+    assert pub.returncode == 0, pub.stderr
+    st = wait_for(lambda: (s := status(system))["manual_source"] == "human" and s)
+    assert st["manual"] == MANUAL and st["manual_version"] >= 2
+    second = call(
+        system, "/lwm/imagine", {"version": 1, "observation": OBS, "actions": [[1, 1, 3]], "max_steps": 3, "seed": 5}
+    )
+    assert second["manual"] == MANUAL and second["manual_version"] == st["manual_version"]
+    assert second["trajectories"][0]["confidence"] != first["trajectories"][0]["confidence"]
+
+
+def test_environment_reset_and_step(system):
+    reset = call(system, "/env/reset", {"seed": 3})
+    assert reset["ok"] and reset["state"]["t"] == 0
+    step = call(system, "/env/step", {"action": 3})
+    assert step["ok"] and step["state"]["t"] == 1
+    bad = call(system, "/env/step", {"action": 9})
+    assert not bad["ok"] and "0..4" in bad["error"]
+
+
+def test_malformed_payloads_get_errors_and_the_nodes_keep_serving(system):
+    errors = subprocess.Popen(
+        [sys.executable, "-m", "lwm_models.cli.main", "ros", "echo", "/lwm/errors", "--count", "3", "--timeout", "40"],
+        stdout=subprocess.PIPE,
+        text=True,
+        env=system["env"],
+    )
+    time.sleep(2.0)
+    assert lwm_ros(system, "pub", "/feedback/manual", '{"version": 1, "descriptions": ["just one"]}').returncode == 0
+    bad = call(system, "/lwm/imagine", "{not json")
+    assert not bad["ok"] and "not JSON" in bad["error"]
+    bad = call(system, "/env/reset", "[1, 2]")
+    assert not bad["ok"]
+    out, _ = errors.communicate(timeout=60)
+    reports = [json.loads(line) for line in out.splitlines() if line.strip()]
+    assert {r["where"] for r in reports} == {"/feedback/manual", "/lwm/imagine", "/env/reset"}
+    ok = call(system, "/lwm/imagine", {"version": 1, "observation": OBS, "n": 2, "max_steps": 2})
+    assert ok["ok"] and len(ok["trajectories"]) == 2
+
+
+def test_a_killed_node_is_restarted(system):
+    log = system["tmp"] / "logs" / "simulator.log"
+    pid_line = subprocess.run(
+        ["pgrep", "-f", "lwm_nodes.simulator_node"], capture_output=True, text=True
+    ).stdout.split()
+    assert pid_line, "simulator not running"
+    os.kill(int(pid_line[0]), signal.SIGKILL)
+    assert wait_for(lambda: Path(log).read_text().count("READY") >= 2, timeout=60)
+    ok = call(system, "/lwm/imagine", {"version": 1, "observation": OBS, "manual": MANUAL, "n": 1, "max_steps": 2})
+    assert ok["ok"]
