@@ -9,11 +9,12 @@ the id token of the identity it was routed to (summed if two are routed to the s
 from __future__ import annotations
 
 import torch
+from torch import nn
 
 from ..messenger.constants import NUM_IDS
 from .base import Conditioning, ManualBatch, WorldModel
 from .description_encoder import AttentionPool, DescriptionEncoder
-from .emma import EmmaConfig
+from .emma import EmmaConfig, zero_init
 
 
 class GPTHardLWM(WorldModel):
@@ -25,12 +26,14 @@ class GPTHardLWM(WorldModel):
         h = config.decoder.hidden
         self.text_encoder = DescriptionEncoder(config.text, h, config.decoder.dropout)
         self.value_pool = AttentionPool(h)
+        self.v_proj = nn.Linear(h, h)
         self._init()
+        zero_init(self.v_proj)  # as in EMMA-LWM: the routed values start at zero
 
     def condition(self, manual: ManualBatch) -> Conditioning:
         if manual.features is None or manual.routed is None:
             raise ValueError("GPTHard needs the encoded descriptions and the parser's routing")
-        values = self.value_pool(self.text_encoder(manual.features, manual.mask), manual.mask)  # [B, 3, H]
+        values = self.v_proj(self.value_pool(self.text_encoder(manual.features, manual.mask), manual.mask))
         table = torch.zeros(values.shape[0], NUM_IDS, values.shape[-1], dtype=values.dtype, device=values.device)
         table.scatter_add_(1, manual.routed.clamp(0, NUM_IDS - 1).unsqueeze(-1).expand_as(values), values)
         table[:, 0] = 0  # unrouted descriptions condition nothing
