@@ -7,12 +7,12 @@ import json
 
 import numpy as np
 
+from ..agent.expert import expert_actions, role_ids
 from ..data.splits import load_split
 from ..errors import LwmError
-from ..messenger.constants import ACTION_NAMES, IDENTITIES
+from ..messenger.constants import ACTION_NAMES
 from ..messenger.engine import BatchedMessenger
-from ..messenger.policies import POLICIES, behaviour_actions, policy_index
-from ..messenger.rng import seed_keys
+from ..messenger.policies import POLICIES, policy_index
 from ..messenger.spec import GameSpec
 from .checkpoint import load_checkpoint
 from .frozen_text import FrozenTextEncoder
@@ -24,23 +24,11 @@ from .shipped import shipped_checkpoint
 
 def imagined_policy(game: GameSpec, policy: str, seed: int):
     """A behaviour policy that reads imagined observations, knowing the game's true roles."""
-    p = policy_index(policy)
-    role_ids = [IDENTITIES[e.identity] for e in game.entities]
+    policy_index(policy)  # a clear error for unknown names, before imagining
+    ids = role_ids(game)
 
     def act(obs: np.ndarray, idx: np.ndarray, t: int) -> np.ndarray:
-        last = obs[:, -1]  # [n, 4, 3]
-        n = len(idx)
-        avatar = last[:, 3, 1:].astype(np.int64)
-        entities = np.zeros((n, 3, 2), dtype=np.int64)
-        present = np.zeros((n, 3), dtype=bool)
-        for k, eid in enumerate(role_ids):
-            hit = last[:, :3, 0] == eid
-            present[:, k] = hit.any(1)
-            ch = hit.argmax(1)
-            entities[:, k] = last[np.arange(n), ch, 1:]
-        has_message = last[:, 3, 0] == 16
-        keys = seed_keys(np.asarray(idx) + seed)
-        return behaviour_actions(np.full(n, p), avatar, entities, present, has_message, keys, t)
+        return expert_actions(obs[:, -1], ids, t, np.asarray(idx) + seed, policy)
 
     return act
 
