@@ -128,6 +128,23 @@ def _cmd_parser_accuracy(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_ledger_show(args: argparse.Namespace) -> int:
+    from ..ledger import Ledger, describe
+
+    if not args.path.is_file():
+        raise LwmError(f"no ledger at {args.path}")
+    ledger = Ledger(args.path)
+    reviews = [args.review] if args.review else ledger.reviews()
+    for review in reviews:
+        records = ledger.history(review)
+        if not records:
+            raise LwmError(f"no review {review!r} in {args.path}")
+        print(f"review {review}")
+        for r in records:
+            print("  " + describe(r))
+    return 0
+
+
 def _cmd_eval(args: argparse.Namespace) -> int:
     from ..world.cli_eval import run_eval
 
@@ -186,6 +203,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", type=Path, default=None, help="write the results as JSON here")
     p.add_argument("--plot", type=Path, default=None, help="write loss against history length as PNG here")
     p.set_defaults(func=_cmd_eval)
+
+    ledger = sub.add_parser("ledger", help="the review ledger")
+    ledger_sub = ledger.add_subparsers(dest="ledger_command", required=True)
+    p = ledger_sub.add_parser("show", help="print the history of a review (default: every review)")
+    p.add_argument("--path", type=Path, default=Path("logs/ledger.sqlite"), help="ledger file")
+    p.add_argument("--review", default=None, help="review id")
+    p.set_defaults(func=_cmd_ledger_show)
 
     p = sub.add_parser("parser-accuracy", help="accuracy of the offline description parser (GPTHard's router)")
     p.add_argument("--texts", nargs="+", type=Path, required=True, help="human-written description files")

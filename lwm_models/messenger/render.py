@@ -27,7 +27,6 @@ from PIL import Image, ImageDraw, ImageFont
 from ..errors import ShapeError
 from .constants import (
     ACTION_NAMES,
-    AVATAR_CHANNEL,
     AVATAR_NO_MESSAGE,
     AVATAR_WITH_MESSAGE,
     GRID,
@@ -35,6 +34,7 @@ from .constants import (
     IDENTITIES,
     NUM_ACTIONS,
     NUM_CHANNELS,
+    WALL,
 )
 from .engine import compact_to_grid
 
@@ -57,6 +57,8 @@ AVATAR_LETTER = "@"
 AVATAR_MESSAGE_LETTER = "&"
 EMPTY_LETTER = "."
 OVERLAP_LETTER = "*"
+WALL_LETTER = "#"
+UNKNOWN_LETTER = "?"
 
 _ID_LETTERS: dict[int, str] = {IDENTITIES[name]: letter for name, letter in IDENTITY_LETTERS.items()}
 _ID_LETTERS[AVATAR_NO_MESSAGE] = AVATAR_LETTER
@@ -140,7 +142,7 @@ def _as_grids(observations: np.ndarray | Sequence[np.ndarray]) -> np.ndarray:
 
 
 def _check_ids(grid: np.ndarray) -> None:
-    bad = sorted(set(int(v) for v in np.unique(grid)) - set(_ID_LETTERS) - {0})
+    bad = sorted(int(v) for v in np.unique(grid) if not 0 <= int(v) <= AVATAR_WITH_MESSAGE)
     if bad:
         raise ShapeError(f"observation holds ids that are not Messenger sprites: {bad}")
 
@@ -163,8 +165,10 @@ def _cells(grid: np.ndarray) -> list[list[_Cell]]:
     for r in range(GRID):
         row: list[_Cell] = []
         for c in range(GRID):
-            entities = [ID_TO_IDENTITY[int(v)] for v in grid[r, c, :AVATAR_CHANNEL] if v != 0]
-            avatar = int(grid[r, c, AVATAR_CHANNEL])
+            # By id, not by channel: an imagined observation may put any sprite in any channel.
+            values = [int(v) for v in grid[r, c] if v != 0]
+            entities = [ID_TO_IDENTITY[v] for v in values if v in ID_TO_IDENTITY]
+            avatar = max((v for v in values if v in (AVATAR_NO_MESSAGE, AVATAR_WITH_MESSAGE)), default=0)
             if avatar == AVATAR_WITH_MESSAGE:
                 row.append(_Cell(AVATAR_MESSAGE_LETTER, "avatar_message", entities))
             elif avatar == AVATAR_NO_MESSAGE:
@@ -173,6 +177,10 @@ def _cells(grid: np.ndarray) -> list[list[_Cell]]:
                 row.append(_Cell(OVERLAP_LETTER, "overlap", entities))
             elif entities:
                 row.append(_Cell(IDENTITY_LETTERS[entities[0]], entities[0], []))
+            elif WALL in values:  # never in the real stage-2 game, but a model can imagine one
+                row.append(_Cell(WALL_LETTER, "empty", []))
+            elif values:  # an id no sprite has (1): only an imagined observation holds one
+                row.append(_Cell(UNKNOWN_LETTER, "empty", []))
             else:
                 row.append(_Cell(EMPTY_LETTER, "empty", []))
         rows.append(row)

@@ -82,13 +82,13 @@ class JsonNode(Node):
         )
 
 
-def run(make_node: Callable[[], Node]) -> int:
+def run(make_node: Callable[[], Node], stop: threading.Event | None = None) -> int:
     """Create the node, print READY, spin until SIGINT/SIGTERM, then shut down in order.
 
     rclpy's own signal handlers are off: they race with an early signal; an Event set by our
     handlers ends the spin loop instead (the pattern measured in shared/docs/ros2-from-pypi.md).
     """
-    stop = threading.Event()
+    stop = stop or threading.Event()
     ros_environment()
     rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
     for sig in (signal.SIGINT, signal.SIGTERM):

@@ -25,6 +25,8 @@ class NodeSpec:
     name: str
     module: str
     params: dict[str, str] = field(default_factory=dict)
+    interactive: bool = False  # inherits the terminal (its output is not prefixed or stored)
+    final: bool = False  # when it exits with 0, the whole system stops (the scripted human)
 
     def command(self) -> list[str]:
         cmd = [sys.executable, "-m", self.module]
@@ -47,6 +49,10 @@ class Supervised:
 
     def start(self) -> None:
         self.ready.clear()
+        if self.spec.interactive:
+            self.proc = subprocess.Popen(self.spec.command())
+            self.ready.set()
+            return
         self.proc = subprocess.Popen(
             self.spec.command(),
             stdout=subprocess.PIPE,
@@ -73,11 +79,23 @@ class Supervised:
             self.proc.send_signal(sig)
 
 
-def default_nodes(checkpoint: str, split: str, index: int, seed: int) -> list[NodeSpec]:
-    return [
+def default_nodes(
+    checkpoint: str, split: str, index: int, seed: int, policy: str, ledger: str, human: str
+) -> list[NodeSpec]:
+    """human: 'scripted', 'interactive' or 'none'."""
+    model = {"checkpoint": checkpoint} if checkpoint else {}
+    nodes = [
         NodeSpec("env", "lwm_nodes.env_node", {"split": split, "index": str(index), "seed": str(seed)}),
-        NodeSpec("simulator", "lwm_nodes.simulator_node", {"checkpoint": checkpoint} if checkpoint else {}),
+        NodeSpec("simulator", "lwm_nodes.simulator_node", model),
+        NodeSpec(
+            "planner", "lwm_nodes.planner_node", {**model, "ledger": ledger, **({"policy": policy} if policy else {})}
+        ),
     ]
+    if human == "scripted":
+        nodes.append(NodeSpec("human", "lwm_nodes.human_node", {"scripted": "true"}, final=True))
+    elif human == "interactive":
+        nodes.append(NodeSpec("human", "lwm_nodes.human_node", {}, interactive=True, final=True))
+    return nodes
 
 
 def supervise(
@@ -111,6 +129,10 @@ def supervise(
             break
         for p in procs:
             code = p.proc.poll()
+            if code is not None and p.spec.final and code == 0:
+                print(f"launcher: {p.spec.name} finished", flush=True)
+                stop.set()
+                break
             if code is not None:
                 p.exit_codes.append(code)
                 if p.restarts >= max_restarts:
@@ -152,11 +174,23 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--max-restarts", type=int, default=3)
     parser.add_argument("--quiet", action="store_true", help="do not echo the nodes' output")
     parser.add_argument("--run-for", type=float, default=None, help="stop after this many seconds (demos, tests)")
+    parser.add_argument("--policy", default="", help="policy directory for the planner (default: shipped, if any)")
+    parser.add_argument("--ledger", default="logs/ledger.sqlite", help="review ledger (SQLite)")
+    human = parser.add_mutually_exclusive_group()
+    human.add_argument("--scripted", action="store_true", help="the simulated human reviews; exits with a summary")
+    human.add_argument("--no-human", action="store_true", help="start no human-feedback node")
     args = parser.parse_args(argv)
     ros_environment()
     os.environ.setdefault("ROS_LOG_DIR", str(args.log_dir.resolve() / "ros"))
-    nodes = default_nodes(args.checkpoint, args.split, args.index, args.seed)
-    return supervise(nodes, args.log_dir, args.ready_timeout, args.max_restarts, not args.quiet, args.run_for)
+    if args.scripted:
+        human = "scripted"
+    elif args.no_human or not sys.stdin.isatty():
+        human = "none"
+    else:
+        human = "interactive"
+    nodes = default_nodes(args.checkpoint, args.split, args.index, args.seed, args.policy, args.ledger, human)
+    echo = not args.quiet and human != "interactive"  # a person reads the human node's screen
+    return supervise(nodes, args.log_dir, args.ready_timeout, args.max_restarts, echo, args.run_for)
 
 
 if __name__ == "__main__":

@@ -1,0 +1,78 @@
+"""The review ledger: every plan, feedback, manual version and execution report, in SQLite.
+
+Each record is one committed transaction written as it happens (WAL mode), so a node killed at
+any moment loses nothing it had acknowledged. `lwm ledger show` prints a review's history.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import sqlite3
+import time
+from pathlib import Path
+
+DEFAULT_LEDGER = Path(os.environ.get("LWM_LEDGER", "logs/ledger.sqlite"))
+KINDS = ("plan", "feedback", "manual", "report")
+
+
+class Ledger:
+    def __init__(self, path: str | Path = DEFAULT_LEDGER) -> None:
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self.db = sqlite3.connect(self.path, timeout=30, isolation_level=None, check_same_thread=False)
+        self.db.execute("PRAGMA journal_mode=WAL")
+        self.db.execute("PRAGMA synchronous=FULL")
+        self.db.execute(
+            "CREATE TABLE IF NOT EXISTS records (id INTEGER PRIMARY KEY AUTOINCREMENT, review_id TEXT NOT NULL, "
+            "kind TEXT NOT NULL, time REAL NOT NULL, payload TEXT NOT NULL)"
+        )
+        self.db.execute("CREATE INDEX IF NOT EXISTS by_review ON records (review_id, id)")
+
+    def record(self, review_id: str, kind: str, payload: dict) -> int:
+        if kind not in KINDS:
+            raise ValueError(f"unknown ledger record kind {kind!r}; known: {KINDS}")
+        cur = self.db.execute(
+            "INSERT INTO records (review_id, kind, time, payload) VALUES (?, ?, ?, ?)",
+            (review_id, kind, time.time(), json.dumps(payload)),
+        )
+        return int(cur.lastrowid)
+
+    def history(self, review_id: str | None = None) -> list[dict]:
+        if review_id is None:
+            rows = self.db.execute("SELECT id, review_id, kind, time, payload FROM records ORDER BY id").fetchall()
+        else:
+            rows = self.db.execute(
+                "SELECT id, review_id, kind, time, payload FROM records WHERE review_id = ? ORDER BY id", (review_id,)
+            ).fetchall()
+        return [{"id": i, "review_id": r, "kind": k, "time": t, "payload": json.loads(p)} for i, r, k, t, p in rows]
+
+    def reviews(self) -> list[str]:
+        return [r for (r,) in self.db.execute("SELECT review_id FROM records GROUP BY review_id ORDER BY MIN(id)")]
+
+    def close(self) -> None:
+        self.db.close()
+
+
+def describe(record: dict) -> str:
+    """One line per record, for `lwm ledger show`."""
+    p = record["payload"]
+    when = time.strftime("%H:%M:%S", time.localtime(record["time"]))
+    if record["kind"] == "plan":
+        what = (
+            f"plan {p['plan_id']} (manual v{p['manual_version']}): {len(p['actions'])} steps, "
+            f"imagined return {p['imagined_return']:+.2f}"
+        )
+    elif record["kind"] == "feedback":
+        detail = {"corrections": lambda: f" {p['corrections']}", "manual": lambda: f" {p['manual']}"}.get(
+            p["decision"], lambda: ""
+        )()
+        what = f"feedback on plan {p['plan_id']}: {p['decision']}{detail}"
+    elif record["kind"] == "manual":
+        what = f"manual v{p['manual_version']} from {p.get('source', '?')}: {p['descriptions']}"
+    else:
+        what = (
+            f"executed plan {p['plan_id']}: real return {p['real_return']:+.2f} "
+            f"(imagined {p['imagined_return']:+.2f}), {p['steps']} steps, {p['outcome']}"
+        )
+    return f"{when} #{record['id']} {what}"
