@@ -36,7 +36,19 @@ def system(tmp_path_factory):
         "ROS_LOG_DIR": str(tmp / "roslog"),
     }
     proc = subprocess.Popen(
-        [sys.executable, "-m", "lwm_nodes.launcher", "--log-dir", str(tmp / "logs"), "--quiet", "--max-restarts", "2"],
+        [
+            sys.executable,
+            "-m",
+            "lwm_nodes.launcher",
+            "--log-dir",
+            str(tmp / "logs"),
+            "--no-human",
+            "--ledger",
+            str(tmp / "ledger.sqlite"),
+            "--quiet",
+            "--max-restarts",
+            "2",
+        ],
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
         text=True,
@@ -44,7 +56,7 @@ def system(tmp_path_factory):
     )
     deadline = time.monotonic() + 120
     for line in proc.stdout:
-        if "all 2 nodes ready" in line:
+        if "nodes ready" in line:
             break
         if time.monotonic() > deadline:
             break
@@ -160,3 +172,42 @@ def test_a_killed_node_is_restarted(system):
     assert wait_for(lambda: Path(log).read_text().count("READY") >= 2, timeout=60)
     ok = call(system, "/lwm/imagine", {"version": 1, "observation": OBS, "manual": MANUAL, "n": 1, "max_steps": 2})
     assert ok["ok"]
+
+
+def test_scripted_review_loop_end_to_end(tmp_path):
+    env = {
+        **os.environ,
+        "ROS_DOMAIN_ID": str(1 + (os.getpid() + 50) % 100),
+        "ROS_LOG_DIR": str(tmp_path / "roslog"),
+        "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST",
+    }
+    ledger = tmp_path / "ledger.sqlite"
+    proc = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "lwm_nodes.launcher",
+            "--scripted",
+            "--quiet",
+            "--log-dir",
+            str(tmp_path / "logs"),
+            "--ledger",
+            str(ledger),
+        ],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=600,
+    )
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
+    assert "human finished" in proc.stdout
+    summary = [line for line in (tmp_path / "logs" / "human.log").read_text().splitlines() if "SUMMARY" in line]
+    assert summary and "real return" in summary[0]
+    shown = subprocess.run(
+        [sys.executable, "-m", "lwm_models.cli.main", "ledger", "show", "--path", str(ledger)],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    kinds = [line.split()[2] for line in shown.stdout.splitlines()[1:]]
+    assert kinds[0] == "manual" and kinds[1] == "plan" and "feedback" in kinds and kinds[-1] == "executed"
