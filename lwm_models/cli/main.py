@@ -17,6 +17,8 @@ import json
 import sys
 from pathlib import Path
 
+import numpy as np
+
 from ..errors import LwmError
 from ..messenger.constants import DEFAULT_MAX_STEPS
 
@@ -145,6 +147,85 @@ def _cmd_ledger_show(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_agent_pretrain(args: argparse.Namespace) -> int:
+    import time
+
+    import torch
+    from tqdm import tqdm
+
+    from ..agent.learning import pretrain
+    from ..agent.policy import EmmaPolicy
+    from ..agent.review import save_policy
+    from ..data.dataset import TrajectoryDataset
+    from ..world.frozen_text import FrozenTextEncoder
+
+    torch.manual_seed(args.seed)
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    data = TrajectoryDataset(args.data, "train")
+    feats, lengths = FrozenTextEncoder().encode_arrays(data.texts)
+    policy = EmmaPolicy()
+    bar = tqdm(total=args.steps, desc="behaviour cloning", disable=args.no_progress)
+    args.out.mkdir(parents=True, exist_ok=True)
+    log = open(args.out / "metrics.jsonl", "w")
+
+    def progress(step: int, loss: float) -> None:
+        bar.update(1)
+        if step % 100 == 0:
+            log.write(json.dumps({"step": step, "loss": loss, "seed": args.seed}) + "\n")
+            log.flush()
+
+    began = time.perf_counter()
+    losses = pretrain(
+        policy,
+        data,
+        torch.from_numpy(feats),
+        torch.from_numpy(lengths),
+        steps=args.steps,
+        batch=args.batch,
+        lr=args.lr,
+        seed=args.seed,
+        progress=progress,
+    )
+    bar.close()
+    save_policy(
+        policy,
+        args.out,
+        {
+            "trained": {
+                "command": "lwm agent pretrain",
+                "data": str(args.data),
+                "steps": args.steps,
+                "batch": args.batch,
+                "lr": args.lr,
+                "seed": args.seed,
+                "final_loss": float(np.mean(losses[-100:])),
+                "seconds": round(time.perf_counter() - began, 1),
+            }
+        },
+    )
+    print(json.dumps({"out": str(args.out), "final_loss": float(np.mean(losses[-100:]))}))
+    return 0
+
+
+def _cmd_export(args: argparse.Namespace) -> int:
+    import torch
+
+    from ..world.checkpoint import load_checkpoint, save_checkpoint
+
+    model, config = load_checkpoint(args.checkpoint)
+    keep = {
+        k: v
+        for k, v in config.items()
+        if k not in ("format", "version", "kind", "config", "dtype", "sha256", "parameters")
+    }
+    keep["exported_from"] = str(args.checkpoint)
+    save_checkpoint(model, args.out, keep, dtype=torch.float16 if args.fp16 else None)
+    size = (args.out / "model.safetensors").stat().st_size
+    print(f"exported {config['kind']} to {args.out} ({size / 1e6:.1f} MB)")
+    return 0
+
+
 def _cmd_eval(args: argparse.Namespace) -> int:
     from ..world.cli_eval import run_eval
 
@@ -210,6 +291,25 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--path", type=Path, default=Path("logs/ledger.sqlite"), help="ledger file")
     p.add_argument("--review", default=None, help="review id")
     p.set_defaults(func=_cmd_ledger_show)
+
+    agent = sub.add_parser("agent", help="the plan-review agent's policy")
+    agent_sub = agent.add_subparsers(dest="agent_command", required=True)
+    p = agent_sub.add_parser("pretrain", help="behaviour-clone the expert on the training games (warm start)")
+    p.add_argument("--data", type=Path, required=True, help="dataset directory")
+    p.add_argument("--out", type=Path, required=True, help="policy directory to write")
+    p.add_argument("--steps", type=int, default=5000)
+    p.add_argument("--batch", type=int, default=128)
+    p.add_argument("--lr", type=float, default=1e-3)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--threads", type=int, default=None)
+    p.add_argument("--no-progress", action="store_true")
+    p.set_defaults(func=_cmd_agent_pretrain)
+
+    p = sub.add_parser("export", help="copy a checkpoint for shipping (optionally fp16)")
+    p.add_argument("--checkpoint", type=Path, required=True)
+    p.add_argument("--out", type=Path, required=True)
+    p.add_argument("--fp16", action="store_true", help="store the weights as float16")
+    p.set_defaults(func=_cmd_export)
 
     p = sub.add_parser("parser-accuracy", help="accuracy of the offline description parser (GPTHard's router)")
     p.add_argument("--texts", nargs="+", type=Path, required=True, help="human-written description files")

@@ -8,6 +8,8 @@ from ..errors import LwmError
 
 CHECKPOINT_DIR = Path(__file__).resolve().parent.parent / "checkpoints"
 SHIPPED = {"emma": CHECKPOINT_DIR / "emma-lwm", "observational": CHECKPOINT_DIR / "observational"}
+SHIPPED_POLICY = CHECKPOINT_DIR / "policy-bc"
+"""The agent's warm-start policy (behaviour cloning on the training games), if shipped."""
 
 
 def shipped_checkpoint(kind: str = "emma") -> Path:

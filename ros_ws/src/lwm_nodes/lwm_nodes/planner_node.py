@@ -17,7 +17,7 @@ from lwm_models.agent.review import ReviewSession, load_policy
 from lwm_models.ledger import Ledger
 from lwm_models.world.checkpoint import load_checkpoint
 from lwm_models.world.frozen_text import FrozenTextEncoder
-from lwm_models.world.shipped import shipped_checkpoint
+from lwm_models.world.shipped import SHIPPED_POLICY, shipped_checkpoint
 from lwm_nodes.common import EVENTS, LATCHED, JsonNode, run
 
 
@@ -61,7 +61,12 @@ class PlannerNode(JsonNode):
         review_id = self.state["episode_id"]
         if self.session is not None and self.session.review_id == review_id:
             return
-        policy = load_policy(self.policy_dir) if self.policy_dir else EmmaPolicy().eval()
+        if self.policy_dir:
+            policy = load_policy(self.policy_dir)
+        elif (SHIPPED_POLICY / "config.json").is_file():
+            policy = load_policy(SHIPPED_POLICY)
+        else:
+            policy = EmmaPolicy().eval()
         agent = PlanReviewAgent(
             self.world,
             self.world_kind,
