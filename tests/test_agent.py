@@ -99,3 +99,19 @@ def test_online_imitation_and_real_evaluation(agent_parts):
     assert result.returns.shape == (48,) and -1.0 <= result.mean <= 1.5
     lo, hi = result.interval()
     assert lo <= result.mean <= hi
+
+
+@pytest.mark.parametrize("setting", ["online_il", "filtered_bc", "warm_start"])
+def test_table3_game(agent_parts, setting):
+    from lwm_models.agent.table3 import Budget, run_game, summarize
+
+    game, _, encoder = agent_parts
+    torch.manual_seed(0)
+    world = build_model("emma", PRESETS["tiny"]).eval()
+    result = run_game(setting, world, "emma", EmmaPolicy(), game, MANUAL, encoder,
+                      Budget(updates=2, episodes=3, filtered_plans=4, eval_episodes=24))
+    assert -1.0 <= result["return"] <= 1.5 and result["wins"] + result["deaths"] <= 24
+    s = summarize([result["return"], 0.5])
+    assert s["ci95"][0] <= s["mean"] <= s["ci95"][1] and s["games"] == 2
+    with pytest.raises(ValueError):
+        run_game("dagger", world, "emma", EmmaPolicy(), game, MANUAL, encoder, Budget())

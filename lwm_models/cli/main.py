@@ -208,6 +208,12 @@ def _cmd_agent_pretrain(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_table3(args: argparse.Namespace) -> int:
+    from ..agent.cli_table3 import run_table3
+
+    return run_table3(args)
+
+
 def _cmd_export(args: argparse.Namespace) -> int:
     import torch
 
@@ -304,6 +310,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--threads", type=int, default=None)
     p.add_argument("--no-progress", action="store_true")
     p.set_defaults(func=_cmd_agent_pretrain)
+
+    p = agent_sub.add_parser("table3", help="the paper's Table 3 on N test games per split")
+    from ..agent.cli_table3 import add_arguments
+
+    add_arguments(p)
+    p.set_defaults(func=_cmd_table3)
 
     p = sub.add_parser("export", help="copy a checkpoint for shipping (optionally fp16)")
     p.add_argument("--checkpoint", type=Path, required=True)
