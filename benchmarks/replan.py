@@ -1,0 +1,97 @@
+"""Re-planning speed: time from "feedback received" to "revised plan ready" for test games with
+the shipped models, and the real return of the revised policy (48 real episodes, argmax).
+Target: <= 60 s on 2 cores, with EMMA-LWM's real NewAll returns above Observational's.
+
+    .venv/bin/python benchmarks/replan.py --data data/human [--games 5] [--updates 20]
+
+Feedback kinds timed: a manual (language feedback: re-read, re-plan), the simulated human's action
+corrections of the current plan (fine-tune, re-plan), and online imitation in the world model
+with the simulated human labelling (learn, re-plan).
+"""
+
+from __future__ import annotations
+
+import argparse
+import copy
+import time
+
+import numpy as np
+
+from lwm_models.agent.agent import Correction, PlanReviewAgent
+from lwm_models.agent.expert import expert_actions, role_ids
+from lwm_models.agent.learning import evaluate_real, expert_labeller
+from lwm_models.agent.policy import EmmaPolicy
+from lwm_models.agent.review import load_policy
+from lwm_models.data.dataset import TrajectoryDataset
+from lwm_models.messenger.engine import BatchedMessenger
+from lwm_models.world.checkpoint import load_checkpoint
+from lwm_models.world.frozen_text import FrozenTextEncoder
+from lwm_models.world.manual import manual_batch
+from lwm_models.world.shipped import SHIPPED, SHIPPED_POLICY
+
+TARGET_S = 60.0
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--data", required=True, help="dataset directory (test games and manuals)")
+    parser.add_argument("--split", default="newall-test")
+    parser.add_argument("--games", type=int, default=5)
+    parser.add_argument("--updates", type=int, default=20, help="online-imitation updates")
+    parser.add_argument("--episodes", type=int, default=16, help="imagined episodes per update")
+    args = parser.parse_args()
+
+    encoder = FrozenTextEncoder()
+    warm = load_policy(SHIPPED_POLICY) if (SHIPPED_POLICY / "config.json").is_file() else EmmaPolicy().eval()
+    ds = TrajectoryDataset(args.data, args.split)
+    games = np.linspace(0, len(ds.games) - 1, args.games).round().astype(int)
+    print(f"{args.split}, {args.games} games, online imitation {args.updates} x {args.episodes} imagined episodes")
+    for kind, path in SHIPPED.items():
+        world, config = load_checkpoint(path)
+        times = {"manual": [], "corrections": [], "online_il": []}
+        returns = {"warm": [], "online_il": []}
+        for g in games:
+            game = ds.games[g]
+            manual = ds[int(np.flatnonzero(np.asarray(ds.episode_games) == g)[0])].manual
+            engine = BatchedMessenger()
+            engine.reset([game], [int(g)])
+            first = engine.compact_observation()[0]
+            agent = PlanReviewAgent(world, config["kind"], copy.deepcopy(warm), encoder, first, list(reversed(manual)))
+            plan = agent.make_plan()
+            policy_manual = manual_batch("emma", manual, encoder)
+            returns["warm"].append(evaluate_real(agent.policy, game, policy_manual, 48, int(g)).mean)
+
+            t = time.perf_counter()
+            agent.set_manual(manual)
+            plan = agent.make_plan()
+            times["manual"].append(time.perf_counter() - t)
+
+            obs = np.asarray(plan.observations, dtype=np.uint8)
+            wanted = expert_actions(obs[:-1], role_ids(game), 1, 0) if len(obs) > 1 else []
+            fixes = [Correction(i + 1, int(a)) for i, a in enumerate(wanted) if a != plan.actions[i]][:8]
+            t = time.perf_counter()
+            if fixes:
+                agent.correct(fixes)
+            agent.make_plan()
+            times["corrections"].append(time.perf_counter() - t)
+
+            t = time.perf_counter()
+            agent.imitate(expert_labeller(game, int(g)), updates=args.updates, episodes=args.episodes)
+            agent.make_plan()
+            times["online_il"].append(time.perf_counter() - t)
+            returns["online_il"].append(evaluate_real(agent.policy, game, policy_manual, 48, int(g)).mean)
+        print(f"{kind}:")
+        for name, ts in times.items():
+            ok = "met" if max(ts) <= TARGET_S else "MISSED"
+            print(
+                f"  feedback -> revised plan, {name:<12}: median {np.median(ts):6.2f} s, max {max(ts):6.2f} s "
+                f"(target <= {TARGET_S:.0f} s: {ok})"
+            )
+        print(
+            f"  real return: warm start {np.mean(returns['warm']):+.2f}, after online imitation "
+            f"{np.mean(returns['online_il']):+.2f}"
+        )
+
+
+if __name__ == "__main__":
+    main()
