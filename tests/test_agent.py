@@ -108,8 +108,16 @@ def test_table3_game(agent_parts, setting):
     game, _, encoder = agent_parts
     torch.manual_seed(0)
     world = build_model("emma", PRESETS["tiny"]).eval()
-    result = run_game(setting, world, "emma", EmmaPolicy(), game, MANUAL, encoder,
-                      Budget(updates=2, episodes=3, filtered_plans=4, eval_episodes=24))
+    result = run_game(
+        setting,
+        world,
+        "emma",
+        EmmaPolicy(),
+        game,
+        MANUAL,
+        encoder,
+        Budget(updates=2, episodes=3, filtered_plans=4, eval_episodes=24),
+    )
     assert -1.0 <= result["return"] <= 1.5 and result["wins"] + result["deaths"] <= 24
     s = summarize([result["return"], 0.5])
     assert s["ci95"][0] <= s["mean"] <= s["ci95"][1] and s["games"] == 2

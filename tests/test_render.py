@@ -166,9 +166,7 @@ def test_colour_board_is_the_plain_board_plus_ansi_codes():
     assert codes["@"] not in {codes[s] for s in ("D", "Q", "L")}
 
 
-@pytest.mark.parametrize(
-    "shape", [(10, 10, 3), (10, 10), (4, 2), (3, 3), (2, 10, 10, 4), (2, 4, 3), (100, 4)]
-)
+@pytest.mark.parametrize("shape", [(10, 10, 3), (10, 10), (4, 2), (3, 3), (2, 10, 10, 4), (2, 4, 3), (100, 4)])
 def test_wrong_shapes_raise_shape_error(shape):
     bad = np.zeros(shape, dtype=np.uint8)
     with pytest.raises(ShapeError, match="got shape"):
@@ -199,7 +197,7 @@ def test_png_size_and_cell_colours(tmp_path):
     def pixel(r: int, c: int) -> tuple:
         return image.getpixel((c * cell + 3, r * cell + 3))  # inside the cell, off the letter
 
-    (ar, ac), = [(r, c) for i, r, c in sprites(obs) if i == AVATAR_NO_MESSAGE]
+    ((ar, ac),) = [(r, c) for i, r, c in sprites(obs) if i == AVATAR_NO_MESSAGE]
     assert pixel(ar, ac) != pixel(0, 0), "the avatar's cell is coloured, the empty corner is not"
     dog = next((r, c) for i, r, c in sprites(obs) if i == IDENTITIES["dog"])
     assert pixel(*dog) not in (pixel(ar, ac), pixel(0, 0))

@@ -79,7 +79,7 @@ def lwm_ros(system, *args: str, timeout: float = 60) -> subprocess.CompletedProc
 
 def call(system, service: str, payload: dict | str) -> dict:
     text = payload if isinstance(payload, str) else json.dumps(payload)
-    proc = lwm_ros(system, "call", service, text)
+    proc = lwm_ros(system, "call", service, text, "--raw")
     assert proc.returncode == 0, proc.stderr
     return json.loads(proc.stdout.strip().splitlines()[-1])
 
@@ -162,13 +162,21 @@ def test_malformed_payloads_get_errors_and_the_nodes_keep_serving(system):
     assert ok["ok"] and len(ok["trajectories"]) == 2
 
 
+def node_pid(module: str, domain: str) -> int:
+    """The pid of a node process of the given ROS domain (other tests' systems may be running)."""
+    for pid in subprocess.run(["pgrep", "-f", module], capture_output=True, text=True).stdout.split():
+        try:
+            environ = Path(f"/proc/{pid}/environ").read_bytes().split(b"\0")
+        except OSError:
+            continue
+        if f"ROS_DOMAIN_ID={domain}".encode() in environ:
+            return int(pid)
+    raise AssertionError(f"no {module} process in domain {domain}")
+
+
 def test_a_killed_node_is_restarted(system):
     log = system["tmp"] / "logs" / "simulator.log"
-    pid_line = subprocess.run(
-        ["pgrep", "-f", "lwm_nodes.simulator_node"], capture_output=True, text=True
-    ).stdout.split()
-    assert pid_line, "simulator not running"
-    os.kill(int(pid_line[0]), signal.SIGKILL)
+    os.kill(node_pid("lwm_nodes.simulator_node", system["env"]["ROS_DOMAIN_ID"]), signal.SIGKILL)
     assert wait_for(lambda: Path(log).read_text().count("READY") >= 2, timeout=60)
     ok = call(system, "/lwm/imagine", {"version": 1, "observation": OBS, "manual": MANUAL, "n": 1, "max_steps": 2})
     assert ok["ok"]
@@ -211,3 +219,48 @@ def test_scripted_review_loop_end_to_end(tmp_path):
     )
     kinds = [line.split()[2] for line in shown.stdout.splitlines()[1:]]
     assert kinds[0] == "manual" and kinds[1] == "plan" and "feedback" in kinds and kinds[-1] == "executed"
+
+
+def test_planner_killed_mid_review_resumes_from_the_ledger(tmp_path):
+    env = {
+        **os.environ,
+        "ROS_DOMAIN_ID": str(1 + (os.getpid() + 25) % 100),
+        "ROS_LOG_DIR": str(tmp_path / "roslog"),
+        "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST",
+    }
+    ledger_path = tmp_path / "ledger.sqlite"
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "lwm_nodes.launcher",
+            "--scripted",
+            "--quiet",
+            "--log-dir",
+            str(tmp_path / "logs"),
+            "--ledger",
+            str(ledger_path),
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        env=env,
+    )
+    from lwm_models.ledger import Ledger
+
+    def first_plan_recorded():
+        if not ledger_path.is_file():
+            return False
+        return any(r["kind"] == "plan" for r in Ledger(ledger_path).history())
+
+    assert wait_for(first_plan_recorded, timeout=180)
+    os.kill(node_pid("lwm_nodes.planner_node", env["ROS_DOMAIN_ID"]), signal.SIGKILL)
+    out, _ = proc.communicate(timeout=600)
+    assert proc.returncode == 0, out[-3000:]
+    assert "planner exited with -9; restart 1" in out
+    records = Ledger(ledger_path).history()
+    plan_ids = [r["payload"]["plan_id"] for r in records if r["kind"] == "plan"]
+    assert plan_ids == sorted(set(plan_ids)), f"a plan was recorded twice: {plan_ids}"
+    assert [r["kind"] for r in records].count("report") == 1
+    assert sum(r["kind"] == "manual" and r["payload"]["source"] == "env" for r in records) == 1
+    assert "resumed from the ledger" in (tmp_path / "logs" / "planner.log").read_text()

@@ -300,7 +300,8 @@ def test_draw(pools):
         pools.draw("train", [unseen[0]], rng)
     assert pools.draw("train", [], rng) == []
     assert pools.draw("train", [list(train[0])], np.random.default_rng(1)) == pools.draw(
-        "train", [train[0]], np.random.default_rng(1))
+        "train", [train[0]], np.random.default_rng(1)
+    )
 
 
 def test_draw_with_typos():

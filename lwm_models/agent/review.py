@@ -28,10 +28,43 @@ class ReviewSession:
         self.revisions = 0
         self.correction_updates = correction_updates
         self._seed = 0
+        self.answered: set[tuple[int, str]] = set()  # (plan_id, decision) already in the ledger
 
     def _log(self, kind: str, payload: dict) -> None:
         if self.ledger is not None:
             self.ledger.record(self.review_id, kind, payload)
+
+    @classmethod
+    def resume(cls, agent: PlanReviewAgent, review_id: str, ledger: Ledger, correction_updates: int = 30):
+        """Rebuild a review from its ledger after a restart: manuals and corrections are replayed in
+        order (the policy is fine-tuned again, deterministically), the last plan is restored.
+        Returns (session, last plan message or None, whether an approved plan still has to run)."""
+        session = cls(agent, review_id, None, correction_updates)
+        last_plan, approved, seen = None, None, set()
+        for record in ledger.history(review_id):
+            p = record["payload"]
+            if record["kind"] == "manual" and p.get("source") != "env":
+                agent.set_manual(p["descriptions"])
+            elif record["kind"] == "plan":
+                last_plan = p
+                agent.plan = Plan(**{k: p[k] for k in Plan.__dataclass_fields__})
+                agent._plans = p["plan_id"]
+                session._seed = p["plan_id"]
+                approved = None
+            elif record["kind"] == "feedback":
+                seen.add((p["plan_id"], p["decision"]))
+                if p["decision"] == "corrections":
+                    agent.correct([Correction(c["step"], c["action"]) for c in p["corrections"]], correction_updates)
+                    agent.plan = Plan(**{k: last_plan[k] for k in Plan.__dataclass_fields__})
+                elif p["decision"] == "approve":
+                    approved = last_plan
+                if p["decision"] != "approve":
+                    session.revisions += 1
+            elif record["kind"] == "report":
+                approved = None
+        session.ledger = ledger
+        session.answered = seen
+        return session, last_plan, approved
 
     def plan_message(self, plan: Plan) -> dict:
         return {"review_id": self.review_id, "manual": list(self.agent.manual), **plan.to_json()}
@@ -60,6 +93,7 @@ class ReviewSession:
                 f"feedback for plan {message['plan_id']}, the current plan is {None if plan is None else plan.plan_id}"
             )
         decision = message["decision"]
+        self.answered.add((message["plan_id"], decision))
         if decision == "manual":
             version = self.agent.set_manual(message["manual"])
             self._log("feedback", message)

@@ -32,6 +32,14 @@ EVENTS = QoSProfile(
     reliability=ReliabilityPolicy.RELIABLE,
     durability=DurabilityPolicy.VOLATILE,
 )
+# Review feedback is kept (transient local) so that a planner restarted mid-review receives what
+# it missed; it skips what its ledger already holds.
+FEEDBACK = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=50,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.TRANSIENT_LOCAL,
+)
 ERRORS_TOPIC = "/lwm/errors"
 FASTDDS_PROFILE = Path(__file__).resolve().parents[3] / "fastdds_profile.xml"
 

@@ -21,7 +21,7 @@ from lwm_models.agent.expert import expert_actions, role_ids
 from lwm_models.data.splits import load_split
 from lwm_models.messenger.constants import ACTION_NAMES
 from lwm_models.messenger.render import render_ascii
-from lwm_nodes.common import EVENTS, LATCHED, JsonNode, run
+from lwm_nodes.common import FEEDBACK, LATCHED, JsonNode, run
 
 
 class HumanNode(JsonNode):
@@ -35,7 +35,7 @@ class HumanNode(JsonNode):
         self.game = None
         self.rounds = 0
         self.plan: dict | None = None
-        self.publish_feedback = self.json_publisher("/review/feedback", "review_feedback", EVENTS)
+        self.publish_feedback = self.json_publisher("/review/feedback", "review_feedback", FEEDBACK)
         self.json_subscription("/env/state", "state", self.on_state, LATCHED)
         self.json_subscription("/planner/plan", "plan", self.on_plan, LATCHED)
         self.json_subscription("/planner/report", "execution_report", self.on_report, LATCHED)

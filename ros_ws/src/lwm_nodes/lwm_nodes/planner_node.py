@@ -18,7 +18,7 @@ from lwm_models.ledger import Ledger
 from lwm_models.world.checkpoint import load_checkpoint
 from lwm_models.world.frozen_text import FrozenTextEncoder
 from lwm_models.world.shipped import SHIPPED_POLICY, shipped_checkpoint
-from lwm_nodes.common import EVENTS, LATCHED, JsonNode, run
+from lwm_nodes.common import FEEDBACK, LATCHED, JsonNode, run
 
 
 class PlannerNode(JsonNode):
@@ -41,7 +41,8 @@ class PlannerNode(JsonNode):
         self.publish_report = self.json_publisher("/planner/report", "execution_report", LATCHED)
         self.json_subscription("/env/manual", "manual", self.on_env_manual, LATCHED)
         self.json_subscription("/env/state", "state", self.on_state, LATCHED)
-        self.json_subscription("/review/feedback", "review_feedback", self.on_feedback, EVENTS)
+        self.pending: list[dict] = []  # feedback that arrived before its review was open
+        self.json_subscription("/review/feedback", "review_feedback", self.on_feedback, FEEDBACK)
         self.reset_client = self.create_client(Json, "/env/reset")
         self.step_client = self.create_client(Json, "/env/step")
 
@@ -75,13 +76,32 @@ class PlannerNode(JsonNode):
             np.asarray(self.state["observation"], dtype=np.uint8),
             list(self.manual),
         )
-        self.session = ReviewSession(agent, review_id, self.ledger)
-        self.publish_plan(self.session.start())
-        self.get_logger().info(f"review {review_id}: plan 1 published")
+        if self.ledger.history(review_id):
+            # A restart: rebuild the review from the ledger instead of starting it again.
+            self.session, plan, approved = ReviewSession.resume(agent, review_id, self.ledger)
+            self.get_logger().info(f"review {review_id} resumed from the ledger at plan {plan and plan['plan_id']}")
+            if plan is not None:
+                self.publish_plan(plan)
+            if approved is not None:
+                self.executing = True
+                threading.Thread(target=self.execute, args=(approved,), daemon=True).start()
+        else:
+            self.session = ReviewSession(agent, review_id, self.ledger)
+            self.publish_plan(self.session.start())
+            self.get_logger().info(f"review {review_id}: plan 1 published")
+        for payload in self.pending:
+            self.on_feedback(payload)
+        self.pending = []
 
     def on_feedback(self, payload: dict) -> None:
         if self.session is None:
-            raise messages.MessageError("no review is open")
+            self.pending.append(payload)
+            return
+        if (
+            payload["review_id"] == self.session.review_id
+            and (payload["plan_id"], payload["decision"]) in self.session.answered
+        ):
+            return  # feedback the ledger already holds (redelivered after a restart)
         if self.executing:
             raise messages.MessageError("a plan is being executed; feedback is closed")
         what, plan = self.session.feedback(payload)

@@ -1,7 +1,7 @@
 """`lwm ros ...`: what ROS users do with the `ros2` command, which PyPI's ROS 2 does not ship.
 
     lwm ros nodes | topics | services
-    lwm ros pub TOPIC JSON|@FILE [--kind manual] [--latched] [--wait 1.0]
+    lwm ros pub TOPIC JSON|@FILE [--kind manual] [--volatile] [--wait 1.0]
     lwm ros echo TOPIC [--count N] [--timeout S] [--latched]
     lwm ros call SERVICE JSON|@FILE [--type Imagine|Json] [--timeout S]
 
@@ -26,9 +26,10 @@ from lwm_models import messages
 from lwm_nodes.common import EVENTS, LATCHED, ros_environment
 
 
-def _payload(arg: str) -> str:
+def _payload(arg: str, raw: bool = False) -> str:
     text = Path(arg[1:]).read_text() if arg.startswith("@") else arg
-    json.loads(text)  # a clear error before anything is sent
+    if not raw:
+        json.loads(text)  # a clear error before anything is sent
     return text
 
 
@@ -67,10 +68,12 @@ def cmd_graph(node: Node, what: str, settle: float) -> int:
 
 
 def cmd_pub(node: Node, args) -> int:
-    text = _payload(args.payload)
+    text = _payload(args.payload, args.raw)
     if args.kind:
         messages.parse(args.kind, text)
-    pub = node.create_publisher(String, args.topic, LATCHED if args.latched else EVENTS)
+    # A transient-local writer matches both volatile and transient-local readers (a volatile one
+    # would not reach the system's latched subscriptions such as /feedback/manual).
+    pub = node.create_publisher(String, args.topic, EVENTS if args.volatile else LATCHED)
     deadline = time.monotonic() + args.wait
     while pub.get_subscription_count() == 0 and time.monotonic() < deadline:
         time.sleep(0.02)
@@ -104,7 +107,7 @@ def cmd_call(node: Node, args) -> int:
     if not client.wait_for_service(timeout_sec=args.timeout):
         print(f"lwm ros: error: service {args.service} is not available", file=sys.stderr)
         return 2
-    request = srv_type.Request(request=_payload(args.payload))
+    request = srv_type.Request(request=_payload(args.payload, args.raw))
     response = client.call(request, timeout_sec=args.timeout)
     if response is None:
         print(f"lwm ros: error: {args.service} did not answer within {args.timeout} s", file=sys.stderr)
@@ -123,8 +126,10 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("topic")
     s.add_argument("payload", help="JSON text, or @FILE")
     s.add_argument("--kind", default=None, help="validate against msgs_json/<kind>.schema.json first")
-    s.add_argument("--latched", action="store_true", help="transient-local QoS (for /feedback/manual)")
+    s.add_argument("--latched", action="store_true", help="(the default) transient-local QoS, depth 1")
+    s.add_argument("--volatile", action="store_true", help="volatile QoS instead of transient local")
     s.add_argument("--wait", type=float, default=2.0, help="seconds to wait for a subscriber")
+    s.add_argument("--raw", action="store_true", help="send the text as it is, even if it is not JSON")
     s = sub.add_parser("echo", help="print the messages of a topic")
     s.add_argument("topic")
     s.add_argument("--count", type=int, default=0, help="stop after N messages (0: until timeout)")
@@ -135,6 +140,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("payload", help="JSON text, or @FILE")
     s.add_argument("--type", choices=["Imagine", "Json"], default=None, help="default: Imagine for /lwm/imagine")
     s.add_argument("--timeout", type=float, default=30.0)
+    s.add_argument("--raw", action="store_true", help="send the text as it is, even if it is not JSON")
     return p
 
 
