@@ -184,3 +184,33 @@ def test_checkpoint_round_trip_and_corruption(tmp_path):
         load_checkpoint(path)
     with pytest.raises(CheckpointError, match="no config.json"):
         load_checkpoint(tmp_path / "nowhere")
+
+
+def test_export_to_fp16_for_shipping(tmp_path):
+    import subprocess
+    import sys
+
+    model = build_model("emma", PRESETS["tiny"])
+    save_checkpoint(model, tmp_path / "run", {"steps": 7, "preset": "tiny"})
+    proc = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "lwm_models.cli.main",
+            "export",
+            "--checkpoint",
+            str(tmp_path / "run"),
+            "--out",
+            str(tmp_path / "ship"),
+            "--fp16",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert proc.returncode == 0, proc.stderr
+    shipped, config = load_checkpoint(tmp_path / "ship")
+    assert config["dtype"] == "float16" and config["steps"] == 7 and config["exported_from"].endswith("run")
+    assert (tmp_path / "ship" / "model.safetensors").stat().st_size < (
+        tmp_path / "run" / "model.safetensors"
+    ).stat().st_size
