@@ -182,33 +182,35 @@ def test_a_killed_node_is_restarted(system):
     assert ok["ok"]
 
 
-def test_scripted_review_loop_end_to_end(tmp_path):
+def start_scripted(tmp_path: Path, domain_offset: int) -> tuple[subprocess.Popen, dict, Path]:
+    """The launcher with the scripted human, in its own ROS domain; returns (process, env, ledger)."""
     env = {
         **os.environ,
-        "ROS_DOMAIN_ID": str(1 + (os.getpid() + 50) % 100),
+        "ROS_DOMAIN_ID": str(1 + (os.getpid() + domain_offset) % 100),
         "ROS_LOG_DIR": str(tmp_path / "roslog"),
         "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST",
     }
     ledger = tmp_path / "ledger.sqlite"
-    proc = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "lwm_nodes.launcher",
-            "--scripted",
-            "--quiet",
-            "--log-dir",
-            str(tmp_path / "logs"),
-            "--ledger",
-            str(ledger),
-        ],
-        capture_output=True,
-        text=True,
-        env=env,
-        timeout=600,
-    )
-    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
-    assert "human finished" in proc.stdout
+    cmd = [
+        sys.executable,
+        "-m",
+        "lwm_nodes.launcher",
+        "--scripted",
+        "--quiet",
+        "--log-dir",
+        str(tmp_path / "logs"),
+        "--ledger",
+        str(ledger),
+    ]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
+    return proc, env, ledger
+
+
+def test_scripted_review_loop_end_to_end(tmp_path):
+    proc, _, ledger = start_scripted(tmp_path, 50)
+    out, _ = proc.communicate(timeout=600)
+    assert proc.returncode == 0, out[-3000:]
+    assert "human finished" in out
     summary = [line for line in (tmp_path / "logs" / "human.log").read_text().splitlines() if "SUMMARY" in line]
     assert summary and "real return" in summary[0]
     shown = subprocess.run(
@@ -222,30 +224,7 @@ def test_scripted_review_loop_end_to_end(tmp_path):
 
 
 def test_planner_killed_mid_review_resumes_from_the_ledger(tmp_path):
-    env = {
-        **os.environ,
-        "ROS_DOMAIN_ID": str(1 + (os.getpid() + 25) % 100),
-        "ROS_LOG_DIR": str(tmp_path / "roslog"),
-        "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST",
-    }
-    ledger_path = tmp_path / "ledger.sqlite"
-    proc = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "lwm_nodes.launcher",
-            "--scripted",
-            "--quiet",
-            "--log-dir",
-            str(tmp_path / "logs"),
-            "--ledger",
-            str(ledger_path),
-        ],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        text=True,
-        env=env,
-    )
+    proc, env, ledger_path = start_scripted(tmp_path, 25)
     from lwm_models.ledger import Ledger
 
     def first_plan_recorded():
