@@ -71,7 +71,7 @@ class Supervised:
                 log.flush()
                 if line.startswith("READY"):
                     self.ready.set()
-                if self.echo:
+                if self.echo or line.startswith("SUMMARY"):  # the loop's outcome is shown even when quiet
                     print(stamped, flush=True)
 
     def signal(self, sig: int) -> None:
