@@ -19,7 +19,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import torch
-import torch.nn.functional as F
 
 from ..errors import LwmError
 from ..messenger.constants import NUM_ACTIONS
@@ -27,6 +26,7 @@ from ..world.base import WorldModel
 from ..world.frozen_text import FrozenTextEncoder
 from ..world.imagine import imagine
 from ..world.manual import ManualError, manual_batch
+from .learning import fit_labels
 from .policy import EmmaPolicy, act, stack_history
 
 
@@ -153,17 +153,14 @@ class PlanReviewAgent:
         )
 
     def _fit(self, labelled: list[tuple[np.ndarray, int]], updates: int) -> None:
-        hist = torch.from_numpy(np.stack([h for h, _ in labelled]))
-        labels = torch.tensor([a for _, a in labelled])
-        opt = torch.optim.Adam(self.policy.parameters(), lr=self.lr)
-        self.policy.train()
-        for _ in range(updates):
-            logits = self.policy(hist, self.policy.id_values(self._policy_manual).expand(len(hist), -1, -1))
-            loss = F.cross_entropy(logits, labels)
-            opt.zero_grad()
-            loss.backward()
-            opt.step()
-        self.policy.eval()
+        fit_labels(
+            self.policy,
+            self._policy_manual,
+            np.stack([h for h, _ in labelled]),
+            np.array([a for _, a in labelled]),
+            updates,
+            self.lr,
+        )
 
     def snapshot(self) -> dict:
         """Everything a rejected feedback must leave unchanged (for tests and the ledger)."""

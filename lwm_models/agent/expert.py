@@ -38,3 +38,15 @@ def expert_actions(
     avatar, entities, present, carrying = role_view(np.asarray(obs), ids)
     keys = seed_keys(np.broadcast_to(np.asarray(seeds), (n,)))
     return behaviour_actions(np.full(n, policy_index(policy)), avatar, entities, present, carrying, keys, t)
+
+
+def expert_policy(game: GameSpec, seed: int = 0, policy: str = "go_to_goal"):
+    """An imagination policy callback (see world.imagine.Policy): the behaviour policy reading the
+    imagined observations with the game's true roles."""
+    policy_index(policy)  # a clear error for unknown names, before imagining
+    ids = role_ids(game)
+
+    def act(obs: np.ndarray, idx: np.ndarray, t: int) -> np.ndarray:
+        return expert_actions(obs[:, -1], ids, t, np.asarray(idx) + seed, policy)
+
+    return act

@@ -77,6 +77,22 @@ def pretrain(
     return losses
 
 
+def fit_labels(
+    policy: EmmaPolicy, manual: ManualBatch, history: np.ndarray, labels: np.ndarray, updates: int, lr: float
+) -> None:
+    """Full-batch supervised steps on (3-observation history, expert action) pairs of one manual."""
+    h = torch.from_numpy(np.ascontiguousarray(history))
+    y = torch.as_tensor(np.asarray(labels, dtype=np.int64))
+    opt = torch.optim.Adam(policy.parameters(), lr=lr)
+    policy.train()
+    for _ in range(updates):
+        loss = F.cross_entropy(policy(h, policy.id_values(manual).expand(len(h), -1, -1)), y)
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    policy.eval()
+
+
 def manual_from_text_ids(text_ids: np.ndarray, features: torch.Tensor, lengths: torch.Tensor) -> ManualBatch:
     idx = torch.from_numpy(np.asarray(text_ids, dtype=np.int64))
     f = features[idx].float()

@@ -13,8 +13,6 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
-import torch
-import torch.nn.functional as F
 
 from ..messenger.engine import BatchedMessenger
 from ..messenger.spec import GameSpec
@@ -22,8 +20,8 @@ from ..world.base import WorldModel
 from ..world.frozen_text import FrozenTextEncoder
 from ..world.imagine import imagine
 from ..world.manual import manual_batch
-from .expert import expert_actions, role_ids
-from .learning import evaluate_real, expert_labeller, online_imitation_with
+from .expert import expert_policy
+from .learning import evaluate_real, expert_labeller, fit_labels, online_imitation_with
 from .policy import EmmaPolicy, stack_history
 
 
@@ -51,12 +49,7 @@ def filtered_behaviour_cloning(
 ) -> float:
     """The expert plans in the world model; the plans with the highest imagined return are cloned.
     Returns the mean imagined return of the kept plans."""
-    ids = role_ids(game)
-
-    def expert(obs: np.ndarray, idx: np.ndarray, t: int) -> np.ndarray:
-        return expert_actions(obs[:, -1], ids, t, np.asarray(idx) + seed)
-
-    im = imagine(world, world_manual, first_obs, n=budget.filtered_plans, policy=expert, seed=seed)
+    im = imagine(world, world_manual, first_obs, n=budget.filtered_plans, policy=expert_policy(game, seed), seed=seed)
     keep = np.argsort(-im.returns)[: max(1, int(round(budget.filtered_plans * budget.filtered_keep)))]
     hist, labels = [], []
     for i in keep:
@@ -64,17 +57,7 @@ def filtered_behaviour_cloning(
         for t in range(1, n):
             hist.append(stack_history(im.observations[i : i + 1, :t])[0])
             labels.append(int(im.actions[i, t]))
-    h = torch.from_numpy(np.stack(hist))
-    y = torch.tensor(labels)
-    opt = torch.optim.Adam(policy.parameters(), lr=budget.lr)
-    policy.train()
-    for _ in range(budget.updates):
-        logits = policy(h, policy.id_values(policy_manual).expand(len(h), -1, -1))
-        loss = F.cross_entropy(logits, y)
-        opt.zero_grad()
-        loss.backward()
-        opt.step()
-    policy.eval()
+    fit_labels(policy, policy_manual, np.stack(hist), np.array(labels), budget.updates, budget.lr)
     return float(im.returns[keep].mean())
 
 

@@ -126,11 +126,10 @@ class BatchedMessenger:
         self.starts = starts
         perm_idx = rng.choice_index(rng.uniform_np(self.keys, 0, rng.SLOT_CHANNELS), len(_CHANNEL_PERMS))
         self.channel_roles = _CHANNEL_PERMS[perm_idx]
-        self.entity_ids = np.array([[e.entity_id for e in s.entities] for s in specs], dtype=np.int64)
+        self.entity_ids = np.array([[e.entity_id for e in s.entities] for s in specs], dtype=np.int64).reshape(n, 3)
         self.movement = np.array(
             [[MOVEMENTS.index(e.movement) for e in s.entities] for s in specs], dtype=np.int64
         ).reshape(n, 3)
-        self.entity_ids = self.entity_ids.reshape(n, 3)
         cells = _STARTS[starts]  # [N, 4, 2]
         self.avatar_row, self.avatar_col = cells[:, 0, 0].copy(), cells[:, 0, 1].copy()
         self.entity_row, self.entity_col = cells[:, 1:, 0].copy(), cells[:, 1:, 1].copy()

@@ -70,9 +70,8 @@ class SplitTokens:
             feats, lengths = encoder.encode_arrays(self.texts)
             self.features = torch.from_numpy(feats)  # [num_texts, T, F] float16
             self.text_lengths = torch.from_numpy(lengths)
-        self.routed = None
-        if router is not None:
-            self.routed = np.array([router(t) for t in self.texts], dtype=np.int64)
+        self.router = router
+        self.routed = None if router is None else np.array([router(t) for t in self.texts], dtype=np.int64)
 
     def __len__(self) -> int:
         return len(self.lengths)
@@ -132,6 +131,8 @@ def redraw_manuals(data: SplitTokens, pools, encoder: FrozenTextEncoder | None, 
             manuals[e, k] = texts.setdefault(text, len(texts))
     data.manuals = manuals
     data.texts = list(texts)
+    if data.router is not None:
+        data.routed = np.array([data.router(t) for t in data.texts], dtype=np.int64)
     if encoder is not None:
         feats, lengths = encoder.encode_arrays(data.texts)
         data.features = torch.from_numpy(feats)

@@ -35,11 +35,6 @@ def run_eval(args: argparse.Namespace) -> int:
         data = SplitTokens(args.data, name, None if pools else encoder, load_router(kind))
         if pools is not None:
             redraw_manuals(data, pools, encoder, args.seed)
-            router = load_router(kind)
-            if router is not None:
-                import numpy as np
-
-                data.routed = np.array([router(t) for t in data.texts], dtype=np.int64)
         splits[name] = data
     began = time.perf_counter()
     results = evaluate_model(model, splits, args.loss_episodes, args.imagination_episodes, args.seed)

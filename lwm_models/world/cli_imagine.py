@@ -7,30 +7,18 @@ import json
 
 import numpy as np
 
-from ..agent.expert import expert_actions, role_ids
+from ..agent.expert import expert_policy
 from ..data.splits import load_split
 from ..errors import LwmError
 from ..messenger.constants import ACTION_NAMES
 from ..messenger.engine import BatchedMessenger
-from ..messenger.policies import POLICIES, policy_index
-from ..messenger.spec import GameSpec
+from ..messenger.policies import POLICIES
 from .checkpoint import load_checkpoint
 from .frozen_text import FrozenTextEncoder
 from .imagine import Imagination, imagine
 from .manual import manual_batch
 from .registry import NEEDS_TEXT
 from .shipped import shipped_checkpoint
-
-
-def imagined_policy(game: GameSpec, policy: str, seed: int):
-    """A behaviour policy that reads imagined observations, knowing the game's true roles."""
-    policy_index(policy)  # a clear error for unknown names, before imagining
-    ids = role_ids(game)
-
-    def act(obs: np.ndarray, idx: np.ndarray, t: int) -> np.ndarray:
-        return expert_actions(obs[:, -1], ids, t, np.asarray(idx) + seed, policy)
-
-    return act
 
 
 def run_imagine(args: argparse.Namespace) -> int:
@@ -66,7 +54,7 @@ def run_imagine(args: argparse.Namespace) -> int:
             batch,
             first,
             n=args.n,
-            policy=imagined_policy(game, args.policy, args.seed),
+            policy=expert_policy(game, args.seed, args.policy),
             max_steps=args.max_steps,
             seed=args.seed,
         )
