@@ -9,6 +9,7 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -142,24 +143,122 @@ def test_environment_reset_and_step(system):
     assert not bad["ok"] and "0..4" in bad["error"]
 
 
+def latched(system, topic: str) -> dict:
+    proc = lwm_ros(system, "echo", topic, "--latched", "--count", "1", "--timeout", "20")
+    assert proc.returncode == 0, f"nothing latched on {topic}"
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+def start_human_node(system) -> subprocess.Popen:
+    """An interactive human-feedback node (nobody types): it subscribes to the plan and report topics."""
+    log = open(system["tmp"] / "human_node.log", "w")
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "lwm_nodes.human_node"],
+        stdin=subprocess.PIPE,
+        stdout=log,
+        stderr=subprocess.STDOUT,
+        env=system["env"],
+    )
+    assert wait_for(lambda: "READY" in (system["tmp"] / "human_node.log").read_text(), timeout=60)
+    return proc
+
+
 def test_malformed_payloads_get_errors_and_the_nodes_keep_serving(system):
+    """Every topic and service a node of the system reads: junk in, a structured error on
+    /lwm/errors from each reading node, and the node still serves afterwards."""
+    human = start_human_node(system)
+    expected = {
+        ("lwm_simulator", "/feedback/manual"),
+        ("lwm_simulator", "/env/manual"),
+        ("planner", "/env/manual"),
+        ("planner", "/env/state"),
+        ("human_feedback", "/env/state"),
+        ("human_feedback", "/planner/plan"),
+        ("human_feedback", "/planner/report"),
+        ("planner", "/review/feedback"),
+        ("lwm_simulator", "/lwm/imagine"),
+        ("messenger_env", "/env/reset"),
+        ("messenger_env", "/env/step"),
+    }
     errors = subprocess.Popen(
-        [sys.executable, "-m", "lwm_models.cli.main", "ros", "echo", "/lwm/errors", "--count", "3", "--timeout", "40"],
+        [sys.executable, "-m", "lwm_models.cli.main", "ros", "echo", "/lwm/errors", "--timeout", "90"],
         stdout=subprocess.PIPE,
         text=True,
         env=system["env"],
     )
-    time.sleep(2.0)
-    assert lwm_ros(system, "pub", "/feedback/manual", '{"version": 1, "descriptions": ["just one"]}').returncode == 0
-    bad = call(system, "/lwm/imagine", "{not json")
-    assert not bad["ok"] and "not JSON" in bad["error"]
-    bad = call(system, "/env/reset", "[1, 2]")
-    assert not bad["ok"]
-    out, _ = errors.communicate(timeout=60)
-    reports = [json.loads(line) for line in out.splitlines() if line.strip()]
-    assert {r["where"] for r in reports} == {"/feedback/manual", "/lwm/imagine", "/env/reset"}
-    ok = call(system, "/lwm/imagine", {"version": 1, "observation": OBS, "n": 2, "max_steps": 2})
-    assert ok["ok"] and len(ok["trajectories"]) == 2
+    try:
+        time.sleep(2.0)
+        plan = latched(system, "/planner/plan")
+        for topic, payload in [
+            ("/feedback/manual", '{"version": 1, "descriptions": ["just one"]}'),
+            ("/env/manual", "{not json"),
+            ("/env/state", '{"version": 1, "t": "zero"}'),
+            ("/planner/plan", "[]"),
+            ("/planner/report", '{"version": 1}'),
+            # Valid JSON for the schema, but step 99 is not in the plan: the agent rejects it.
+            (
+                "/review/feedback",
+                json.dumps(
+                    {
+                        "version": 1,
+                        "review_id": plan["review_id"],
+                        "plan_id": plan["plan_id"],
+                        "decision": "corrections",
+                        "corrections": [{"step": 99, "action": 1}],
+                    }
+                ),
+            ),
+        ]:
+            readers = {"/env/manual": 2, "/env/state": 2}.get(topic, 1)
+            assert lwm_ros(system, "pub", topic, payload, "--raw", "-w", str(readers), "--wait", "10").returncode == 0
+        bad = call(system, "/lwm/imagine", "{not json")
+        assert not bad["ok"] and "not JSON" in bad["error"]
+        bad = call(system, "/env/reset", "[1, 2]")
+        assert not bad["ok"]
+        bad = call(system, "/env/step", '{"action": "up"}')
+        assert not bad["ok"]
+
+        lines: list[str] = []
+        reader = threading.Thread(target=lambda: lines.extend(errors.stdout), daemon=True)
+        reader.start()
+
+        def reports() -> list[dict]:
+            return [json.loads(line) for line in list(lines) if line.strip()]
+
+        wait_for(lambda: {(r["node"], r["where"]) for r in reports()} >= expected, timeout=60)
+        got = {(r["node"], r["where"]) for r in reports()}
+        assert got >= expected, f"missing error reports: {sorted(expected - got)}"
+        assert all(r["error"] for r in reports())
+
+        # Everyone still serves: the services answer, the planner takes a corrected feedback
+        # for the same plan and publishes the next plan, the human node prints it.
+        ok = call(system, "/lwm/imagine", {"version": 1, "observation": OBS, "n": 2, "max_steps": 2})
+        assert ok["ok"] and len(ok["trajectories"]) == 2
+        assert call(system, "/env/reset", {"seed": 3})["ok"]
+        assert call(system, "/env/step", {"action": 4})["ok"]
+        plan = wait_for(lambda: (p := latched(system, "/planner/plan"))["review_id"].endswith(":3") and p, timeout=60)
+        assert plan, "no plan for the reset episode"
+        fix = {
+            "version": 1,
+            "review_id": plan["review_id"],
+            "plan_id": plan["plan_id"],
+            "decision": "corrections",
+            "corrections": [{"step": 1, "action": (plan["actions"][0] + 1) % 5}],
+        }
+        assert lwm_ros(system, "pub", "/review/feedback", json.dumps(fix), "--kind", "review_feedback").returncode == 0
+        revised = wait_for(
+            lambda: (p := latched(system, "/planner/plan"))["plan_id"] > plan["plan_id"] and p, timeout=60
+        )
+        assert revised and revised["review_id"] == plan["review_id"]
+        log = system["tmp"] / "human_node.log"
+        assert wait_for(lambda: f"=== plan {revised['plan_id']} " in log.read_text(), timeout=30)
+        assert human.poll() is None
+    finally:
+        errors.terminate()
+        assert errors.wait(timeout=30) == 130
+        human.send_signal(signal.SIGINT)
+        human.wait(timeout=30)
+    assert human.returncode == 0
 
 
 def node_pid(module: str, domain: str) -> int:

@@ -93,7 +93,6 @@ class ReviewSession:
                 f"feedback for plan {message['plan_id']}, the current plan is {None if plan is None else plan.plan_id}"
             )
         decision = message["decision"]
-        self.answered.add((message["plan_id"], decision))
         if decision == "manual":
             version = self.agent.set_manual(message["manual"])
             self._log("feedback", message)
@@ -105,6 +104,8 @@ class ReviewSession:
             self._log("feedback", message)
         else:
             self._log("feedback", message)
+        # Only feedback the agent took counts as answered: a rejected one may be sent again, fixed.
+        self.answered.add((message["plan_id"], decision))
         if decision == "approve":
             return "execute", self.plan_message(plan)
         self.revisions += 1

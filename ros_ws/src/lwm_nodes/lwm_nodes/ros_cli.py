@@ -1,7 +1,7 @@
 """`lwm ros ...`: what ROS users do with the `ros2` command, which PyPI's ROS 2 does not ship.
 
     lwm ros nodes | topics | services
-    lwm ros pub TOPIC JSON|@FILE [--kind manual] [--volatile] [--wait 1.0]
+    lwm ros pub TOPIC JSON|@FILE [--kind manual] [--volatile] [--wait 1.0] [-w N]
     lwm ros echo TOPIC [--count N] [--timeout S] [--latched]
     lwm ros call SERVICE JSON|@FILE [--type Imagine|Json] [--timeout S]
 
@@ -12,14 +12,17 @@ from __future__ import annotations
 
 import argparse
 import json
+import signal
 import sys
 import threading
 import time
 from pathlib import Path
 
 import rclpy
+from rclpy.duration import Duration
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
+from rclpy.signals import SignalHandlerOptions
 from std_msgs.msg import String
 
 from lwm_models import messages
@@ -75,11 +78,11 @@ def cmd_pub(node: Node, args) -> int:
     # would not reach the system's latched subscriptions such as /feedback/manual).
     pub = node.create_publisher(String, args.topic, EVENTS if args.volatile else LATCHED)
     deadline = time.monotonic() + args.wait
-    while pub.get_subscription_count() == 0 and time.monotonic() < deadline:
+    while pub.get_subscription_count() < args.wait_matching_subscriptions and time.monotonic() < deadline:
         time.sleep(0.02)
     pub.publish(String(data=text))
-    # Reliable delivery needs the publisher alive until the sample is acknowledged.
-    time.sleep(min(0.5, args.wait))
+    # Reliable delivery needs the publisher alive until every reader has acknowledged the sample.
+    pub.wait_for_all_acked(Duration(seconds=max(args.wait, 0.5)))
     print(f"published to {args.topic} ({pub.get_subscription_count()} subscriber(s))")
     return 0
 
@@ -128,7 +131,15 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--kind", default=None, help="validate against msgs_json/<kind>.schema.json first")
     s.add_argument("--latched", action="store_true", help="(the default) transient-local QoS, depth 1")
     s.add_argument("--volatile", action="store_true", help="volatile QoS instead of transient local")
-    s.add_argument("--wait", type=float, default=2.0, help="seconds to wait for a subscriber")
+    s.add_argument("--wait", type=float, default=2.0, help="seconds to wait for subscribers and acknowledgements")
+    s.add_argument(
+        "-w",
+        "--wait-matching-subscriptions",
+        type=int,
+        default=1,
+        metavar="N",
+        help="publish once N subscribers are matched (or --wait has passed), as `ros2 topic pub -w N`",
+    )
     s.add_argument("--raw", action="store_true", help="send the text as it is, even if it is not JSON")
     s = sub.add_parser("echo", help="print the messages of a topic")
     s.add_argument("topic")
@@ -144,12 +155,19 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def _interrupt(*_) -> None:
+    raise KeyboardInterrupt
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     if getattr(args, "type", "x") is None:
         args.type = "Imagine" if args.service.endswith("imagine") else "Json"
     ros_environment()
-    rclpy.init()
+    # rclpy's handlers would shut the context down under the spinning thread; SIGINT and SIGTERM
+    # end the command through KeyboardInterrupt instead, so the node is torn down in order.
+    rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
+    signal.signal(signal.SIGTERM, _interrupt)
     node = rclpy.create_node(f"lwm_cli_{int(time.time() * 1000) % 100000}")
     spinner = BackgroundSpin(node)
     try:
