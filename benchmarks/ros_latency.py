@@ -1,6 +1,8 @@
 """ROS overhead, in one run: the /lwm/imagine round trip against the same imagine call made
 in-process, and a std_msgs/String topic round trip, across real processes on localhost.
-Target: service overhead (round trip minus in-process time) <= 2 ms at the median.
+Target: service overhead (round trip minus in-process time) <= 2 ms at the median. The two are
+measured interleaved, call by call; LWM_EXECUTOR=single|events picks the rclpy executor of the
+node and of this client (default: events).
 
     .venv/bin/python benchmarks/ros_latency.py [--checkpoint DIR] [--calls 200]
 
@@ -20,6 +22,7 @@ import threading
 import time
 
 import numpy as np
+import torch
 
 os.environ.setdefault("ROS_DOMAIN_ID", str(1 + os.getpid() % 100))
 os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
@@ -88,24 +91,26 @@ def main() -> None:
         # In-process: the same Simulator the node wraps, the same validated JSON in and out.
         sim = Simulator(args.checkpoint)
         text = json.dumps(REQUEST)
-        local = []
-        for _ in range(args.calls):
-            t = time.perf_counter()
-            messages.dump("imagine_response", sim.imagine(messages.parse("imagine_request", text)))
-            local.append(time.perf_counter() - t)
 
         rclpy.init()
         node = rclpy.create_node("bench_client")
         spinner = BackgroundSpin(node)
         client = node.create_client(Imagine, "/lwm/imagine")
         assert client.wait_for_service(timeout_sec=30), "simulator not available"
-        remote = []
-        for _ in range(args.calls + 10):
+        # Interleaved, so that both see the same machine: the overhead is the median of the
+        # paired differences (round trip minus the in-process call just before it).
+        local, remote = [], []
+        for i in range(args.calls + 10):
+            t = time.perf_counter()
+            messages.dump("imagine_response", sim.imagine(messages.parse("imagine_request", text)))
+            t_local = time.perf_counter() - t
             t = time.perf_counter()
             response = client.call(Imagine.Request(request=text), timeout_sec=30)
-            remote.append(time.perf_counter() - t)
+            t_remote = time.perf_counter() - t
             assert json.loads(response.response)["ok"]
-        remote = remote[10:]
+            if i >= 10:  # warm-up
+                local.append(t_local)
+                remote.append(t_remote)
 
         got = threading.Event()
         node.create_subscription(String, "/bench/pong", lambda m: got.set(), EVENTS)
@@ -132,7 +137,9 @@ def main() -> None:
             p.send_signal(signal.SIGINT)
             p.wait(10)
 
-    overhead = float(np.median(remote) - np.median(local)) * 1000
+    overhead = float(np.median(np.subtract(remote, local))) * 1000
+    executor = os.environ.get("LWM_EXECUTOR", "events")
+    print(f"executor: {executor}, {args.calls} calls, torch threads {torch.get_num_threads()}")
     print(f"imagine in-process      : {percentiles(local)}")
     print(f"/lwm/imagine round trip : {percentiles(remote)}")
     print(f"topic round trip (1 KB) : {percentiles(topic)}")

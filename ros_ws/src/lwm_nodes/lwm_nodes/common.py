@@ -11,7 +11,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 import rclpy
-from rclpy.executors import SingleThreadedExecutor
+from rclpy.executors import Executor, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
@@ -90,6 +90,20 @@ class JsonNode(Node):
         )
 
 
+def make_executor() -> Executor:
+    """The executor every process of the system spins: rclpy's EventsExecutor (C++, event driven)
+    unless LWM_EXECUTOR=single asks for the pure-Python SingleThreadedExecutor. The events one cut
+    the /lwm/imagine service overhead by about a third (benchmarks/ros_latency.py)."""
+    choice = os.environ.get("LWM_EXECUTOR", "events")
+    if choice == "events":
+        from rclpy.experimental import EventsExecutor
+
+        return EventsExecutor()
+    if choice == "single":
+        return SingleThreadedExecutor()
+    raise ValueError(f"LWM_EXECUTOR must be 'events' or 'single', not {choice!r}")
+
+
 def run(make_node: Callable[[], Node], stop: threading.Event | None = None) -> int:
     """Create the node, print READY, spin until SIGINT/SIGTERM, then shut down in order.
 
@@ -102,7 +116,7 @@ def run(make_node: Callable[[], Node], stop: threading.Event | None = None) -> i
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
     node = None
-    executor = SingleThreadedExecutor()
+    executor = make_executor()
     try:
         node = make_node()
         executor.add_node(node)

@@ -20,7 +20,6 @@ from pathlib import Path
 
 import rclpy
 from rclpy.duration import Duration
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 from std_msgs.msg import String
@@ -41,7 +40,9 @@ class BackgroundSpin:
     it before the node is destroyed: destroying a node under a spinning thread aborts."""
 
     def __init__(self, node: Node) -> None:
-        self.executor = SingleThreadedExecutor()
+        from lwm_nodes.common import make_executor
+
+        self.executor = make_executor()
         self.executor.add_node(node)
         self.stop = threading.Event()
         self.thread = threading.Thread(target=self._loop, daemon=True)
