@@ -8,7 +8,7 @@ import torch
 
 from lwm_models.agent.agent import Correction, FeedbackError, PlanReviewAgent
 from lwm_models.agent.expert import expert_actions, role_ids
-from lwm_models.agent.learning import evaluate_real, expert_labeller
+from lwm_models.agent.learning import Budget, evaluate_real, expert_labeller, labelled_states, start_observations
 from lwm_models.agent.policy import EmmaPolicy
 from lwm_models.data.splits import load_split
 from lwm_models.messenger import rollout
@@ -46,6 +46,49 @@ def test_expert_reproduces_go_to_goal():
     for i, g in enumerate(games):
         for t in range(1, int(ro.lengths[i])):
             assert expert_actions(ro.observations[i, t - 1][None], role_ids(g), t, i)[0] == ro.actions[i, t]
+
+
+def test_labelled_states_pair_each_state_with_the_next_action():
+    games = load_split("train")[:8]
+    ro = rollout(games, np.arange(8), np.full(8, 4))  # go_to_goal
+    hist, labels = labelled_states(ro.observations, ro.lengths, ro.actions.shape[1] - 1, actions=ro.actions)
+    assert len(hist) == int((ro.lengths - 1).sum())
+    # The same pairs from the expert labeller, game by game: the actions were go_to_goal's.
+    for i, g in enumerate(games):
+        h, y = labelled_states(ro.observations[i : i + 1], ro.lengths[i : i + 1], 32, expert_labeller(g, i))
+        assert np.array_equal(y, ro.actions[i, 1 : ro.lengths[i]])
+        assert np.array_equal(h[:, -1], ro.observations[i, : ro.lengths[i] - 1])
+
+
+def test_start_observations_are_the_24_starts():
+    game = load_split("newall-test")[3]
+    starts = start_observations(game)
+    assert starts.shape == (24, 4, 3)
+    assert len({tuple(s[3, 1:]) for s in starts}) > 1  # the avatar starts in different cells
+
+
+def test_online_imitation_in_the_shipped_world_model_learns_the_expert():
+    from lwm_models.agent.review import load_policy
+    from lwm_models.world.checkpoint import load_checkpoint
+    from lwm_models.world.shipped import SHIPPED, SHIPPED_POLICY
+
+    game = load_split("newall-test")[5]
+    world, config = load_checkpoint(SHIPPED["emma"])
+    encoder = FrozenTextEncoder()
+    from lwm_models.agent.learning import online_imitation_with
+
+    policy = load_policy(SHIPPED_POLICY)
+    manual = manual_batch("emma", MANUAL, encoder)
+    losses = online_imitation_with(
+        policy,
+        world,
+        manual,
+        manual,
+        expert_labeller(game),
+        start_observations(game),
+        Budget(iterations=8, episodes=8, grad_steps=8, lr=1e-3),
+    )
+    assert len(losses) == 8 and np.mean(losses[-2:]) < 0.8 * np.mean(losses[:2])
 
 
 def test_plan_and_manual_feedback(agent_parts):
@@ -93,7 +136,7 @@ def test_corrections_teach_the_policy(agent_parts):
 def test_online_imitation_and_real_evaluation(agent_parts):
     game, first, encoder = agent_parts
     agent = make_agent(agent_parts)
-    losses = agent.imitate(expert_labeller(game), updates=3, episodes=4)
+    losses = agent.imitate(expert_labeller(game), Budget(iterations=3, episodes=4, grad_steps=2))
     assert len(losses) == 3 and all(np.isfinite(losses))
     result = evaluate_real(agent.policy, game, manual_batch("emma", MANUAL, encoder), episodes=48)
     assert result.returns.shape == (48,) and -1.0 <= result.mean <= 1.5
@@ -103,7 +146,7 @@ def test_online_imitation_and_real_evaluation(agent_parts):
 
 @pytest.mark.parametrize("setting", ["online_il", "filtered_bc", "warm_start"])
 def test_table3_game(agent_parts, setting):
-    from lwm_models.agent.table3 import Budget, run_game, summarize
+    from lwm_models.agent.table3 import run_game, summarize
 
     game, _, encoder = agent_parts
     torch.manual_seed(0)
@@ -116,10 +159,67 @@ def test_table3_game(agent_parts, setting):
         game,
         MANUAL,
         encoder,
-        Budget(updates=2, episodes=3, filtered_plans=4, eval_episodes=24),
+        Budget(iterations=2, episodes=3, grad_steps=2, plans_per_start=2, eval_episodes=24),
     )
     assert -1.0 <= result["return"] <= 1.5 and result["wins"] + result["deaths"] <= 24
     s = summarize([result["return"], 0.5])
     assert s["ci95"][0] <= s["mean"] <= s["ci95"][1] and s["games"] == 2
     with pytest.raises(ValueError):
         run_game("dagger", world, "emma", EmmaPolicy(), game, MANUAL, encoder, Budget())
+
+
+def test_table3_cli_records_resume_and_merge(tmp_path):
+    import json
+    import subprocess
+    import sys
+
+    lwm = [sys.executable, "-m", "lwm_models.cli.main"]
+    data = tmp_path / "d"
+    gen = ["data", "generate", "--out", str(data), "--max-games", "2", "--episodes-per-game", "1", "--no-progress"]
+    assert subprocess.run(lwm + gen, capture_output=True, timeout=300).returncode == 0
+    records = tmp_path / "r.jsonl"
+    argv = lwm + ["agent", "table3", "--data", str(data), "--games", "1", "--splits", "newall-test"]
+    argv += ["--settings", "warm_start", "online_il", "--iterations", "1", "--episodes", "2", "--grad-steps", "1"]
+    argv += ["--records", str(records), "--no-progress"]
+    first = subprocess.run(argv, capture_output=True, text=True, timeout=600)
+    assert first.returncode == 0, first.stderr
+    rows = [json.loads(line) for line in records.read_text().splitlines()]
+    assert {(r["setting"], r["model"]) for r in rows} == {
+        (s, m) for s in ("warm_start", "online_il") for m in ("emma", "observational")
+    }
+    assert all(-1.0 <= r["return"] <= 1.5 and r["split"] == "newall-test" for r in rows)
+    again = subprocess.run(argv, capture_output=True, text=True, timeout=600)
+    assert again.returncode == 0 and "this run: 0 game(s)" in again.stdout
+    assert len(records.read_text().splitlines()) == len(rows)
+    merged = subprocess.run(
+        lwm
+        + ["agent", "table3", "--data", str(data), "--from-records", str(records), "--out", str(tmp_path / "t.json")],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert merged.returncode == 0, merged.stderr
+    table = json.loads((tmp_path / "t.json").read_text())["rows"]
+    assert table["online_il/emma"]["newall-test"]["games"] == 1
+    missing = subprocess.run(
+        lwm + ["agent", "table3", "--data", str(data), "--from-records", str(tmp_path / "none.jsonl")],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert missing.returncode != 0 and "no such records file" in missing.stderr and "Traceback" not in missing.stderr
+
+
+def test_policy_sparse_first_convolution_matches_the_dense_grid():
+    torch.manual_seed(1)
+    policy = EmmaPolicy()
+    games = load_split("train")[:16]
+    ro = rollout(games, np.arange(16), np.full(16, 0))  # random actions: entities anywhere, at edges too
+    from lwm_models.agent.policy import stack_history
+
+    history = np.stack([stack_history(ro.observations[i : i + 1, :t])[0] for i in range(16) for t in (1, 3, 9)])
+    history[0, :, 1] = history[0, :, 0]  # two entities in one cell: their vectors add
+    manual = manual_batch("emma", MANUAL, FrozenTextEncoder())
+    h = torch.from_numpy(history)
+    id_values = policy.id_values(manual).expand(len(h), -1, -1)
+    torch.testing.assert_close(policy(h, id_values), policy.forward_dense(h, id_values), rtol=1e-4, atol=1e-4)

@@ -26,7 +26,7 @@ from ..world.base import WorldModel
 from ..world.frozen_text import FrozenTextEncoder
 from ..world.imagine import imagine
 from ..world.manual import ManualError, manual_batch
-from .learning import fit_labels
+from .learning import Budget, fit_labels, online_imitation_with
 from .policy import EmmaPolicy, act, stack_history
 
 
@@ -64,7 +64,8 @@ class PlanReviewAgent:
     first_obs: np.ndarray
     manual: list[str]
     max_steps: int = 32
-    lr: float = 3e-4
+    lr: float = 1e-3
+    starts: np.ndarray | None = None  # first observations imagination may start from (default: first_obs)
     manual_version: int = 1
     plan: Plan | None = None
     labelled: list[tuple[np.ndarray, int]] = field(default_factory=list)
@@ -133,21 +134,18 @@ class PlanReviewAgent:
         return len(self.labelled)
 
     def imitate(
-        self, labeller: Callable[[np.ndarray, int], np.ndarray], updates: int = 20, episodes: int = 16, seed: int = 0
+        self, labeller: Callable[[np.ndarray, int], np.ndarray], budget: Budget | None = None, seed: int = 0
     ) -> list[float]:
-        """Online imitation in the world model with a labeller(observations [n, 4, 3], t) -> actions."""
-        from .learning import online_imitation_with
-
+        """Online imitation in the world model from this episode's first observation (or `starts`),
+        with a labeller(observations [n, 4, 3], t) -> actions. Returns the mean loss of each round."""
         return online_imitation_with(
             self.policy,
             self.world,
             self._world_manual,
             self._policy_manual,
             labeller,
-            self.first_obs,
-            updates,
-            episodes,
-            self.lr,
+            self.first_obs if self.starts is None else self.starts,
+            budget or Budget(),
             seed,
             self.max_steps,
         )

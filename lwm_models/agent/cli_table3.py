@@ -15,9 +15,10 @@ from ..errors import LwmError
 from ..world.checkpoint import load_checkpoint
 from ..world.frozen_text import FrozenTextEncoder
 from ..world.shipped import SHIPPED, SHIPPED_POLICY
+from .learning import Budget
 from .policy import EmmaPolicy
 from .review import load_policy
-from .table3 import Budget, run_game, summarize
+from .table3 import run_game, summarize
 
 PAPER = {  # real return, from the paper (shared/docs/messenger-wm.md §4)
     ("online_il", "observational"): (0.75, -0.41, -0.21),
@@ -44,14 +45,90 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         choices=["online_il", "filtered_bc", "warm_start"],
     )
     p.add_argument("--policy", type=Path, default=None, help="warm-start policy (default: shipped, else untrained)")
-    p.add_argument("--updates", type=int, default=20, help="policy updates per game")
-    p.add_argument("--episodes", type=int, default=16, help="imagined episodes per update")
+    p.add_argument("--iterations", type=int, default=Budget.iterations, help="online imitation: imagination rounds")
+    p.add_argument("--episodes", type=int, default=Budget.episodes, help="imagined episodes per round")
+    p.add_argument("--grad-steps", type=int, default=Budget.grad_steps, help="minibatch steps per round")
+    p.add_argument("--lr", type=float, default=Budget.lr)
+    p.add_argument("--plans-per-start", type=int, default=Budget.plans_per_start, help="filtered BC: expert plans")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--out", type=Path, default=None, help="write the results as JSON")
+    p.add_argument("--out", type=Path, default=None, help="write the table as JSON")
+    p.add_argument(
+        "--records",
+        type=Path,
+        default=None,
+        help="JSONL of per-game results, appended as each game finishes; games already in it are skipped "
+        "(resume, or split the work over processes and merge the files with --from-records)",
+    )
+    p.add_argument("--from-records", type=Path, nargs="+", default=None, help="only print the table of these files")
     p.add_argument("--no-progress", action="store_true")
 
 
+def _budget(args: argparse.Namespace) -> Budget:
+    return Budget(
+        iterations=args.iterations,
+        episodes=args.episodes,
+        grad_steps=args.grad_steps,
+        lr=args.lr,
+        plans_per_start=args.plans_per_start,
+    )
+
+
+def _load_records(paths: list[Path]) -> list[dict]:
+    records = []
+    for path in paths:
+        if not path.is_file():
+            continue
+        for n, line in enumerate(path.read_text().splitlines(), 1):
+            if not line.strip():
+                continue
+            try:
+                records.append(json.loads(line))
+            except json.JSONDecodeError:
+                raise LwmError(f"{path}:{n}: not a JSON record") from None
+    return records
+
+
+def table(records: list[dict]) -> dict:
+    """Mean and 95% interval per (setting/model, split) over the recorded games."""
+    rows: dict = {}
+    for key in sorted({(r["setting"], r["model"]) for r in records}):
+        row = rows.setdefault(f"{key[0]}/{key[1]}", {})
+        for split in SPLITS:
+            games = [r for r in records if (r["setting"], r["model"], r["split"]) == (*key, split)]
+            if games:
+                row[split] = {
+                    **summarize([r["return"] for r in games]),
+                    "learn_seconds_per_game": round(float(np.mean([r["learn_seconds"] for r in games])), 2),
+                }
+    return rows
+
+
+def print_table(rows: dict) -> None:
+    print("Table 3: mean real return over the test games of each split (95% interval); paper in brackets")
+    print(f"{'setting / model':<28}" + "".join(f"{s:>30}" for s in SPLITS))
+    for key, row in rows.items():
+        setting, name = key.split("/")
+        paper = PAPER.get((setting, name))
+        cells = []
+        for i, split in enumerate(SPLITS):
+            r = row.get(split)
+            ref = f" [{paper[i]:+.2f}]" if paper else ""
+            cells.append(
+                "-" if r is None else f"{r['mean']:+.2f} ({r['ci95'][0]:+.2f},{r['ci95'][1]:+.2f}) n{r['games']}{ref}"
+            )
+        print(f"{key:<28}" + "".join(f"{c:>30}" for c in cells))
+
+
 def run_table3(args: argparse.Namespace) -> int:
+    if args.from_records:
+        missing = [p for p in args.from_records if not p.is_file()]
+        if missing:
+            raise LwmError(f"no such records file: {missing[0]}")
+        rows = table(_load_records(args.from_records))
+        print_table(rows)
+        if args.out:
+            args.out.write_text(json.dumps({"rows": rows}, indent=2))
+        return 0
     models = {}
     pairs = args.models or [f"{k}={v}" for k, v in SHIPPED.items()]
     for pair in pairs:
@@ -65,53 +142,41 @@ def run_table3(args: argparse.Namespace) -> int:
         else EmmaPolicy().eval()
     )
     encoder = FrozenTextEncoder()
-    budget = Budget(updates=args.updates, episodes=args.episodes)
-    results: dict = {"budget": budget.__dict__, "seed": args.seed, "games_per_split": args.games, "rows": {}}
-    began = time.perf_counter()
-    total = len(args.settings) * len(models) * len(args.splits) * args.games
-    bar = tqdm(total=total, desc="table 3", disable=args.no_progress)
+    budget = _budget(args)
+    done = {
+        (r["setting"], r["model"], r["split"], r["game"]) for r in _load_records([args.records] if args.records else [])
+    }
+    began, began_cpu = time.perf_counter(), time.process_time()
+    todo = []
     for split in args.splits:
         ds = TrajectoryDataset(args.data, split)
         games = np.linspace(0, len(ds.games) - 1, min(args.games, len(ds.games))).round().astype(int)
-        first_episode = {int(g): int(np.flatnonzero(np.asarray(ds.episode_games) == g)[0]) for g in games}
-        for setting in args.settings:
-            for name, (world, config) in models.items():
-                per_game = []
-                for g in games:
-                    manual = ds[first_episode[int(g)]].manual
-                    per_game.append(
-                        run_game(
-                            setting,
-                            world,
-                            config["kind"],
-                            warm,
-                            ds.games[g],
-                            manual,
-                            encoder,
-                            budget,
-                            args.seed + int(g),
-                        )
-                    )
-                    bar.update(1)
-                row = results["rows"].setdefault(f"{setting}/{name}", {})
-                row[split] = {
-                    **summarize([r["return"] for r in per_game]),
-                    "learn_seconds_per_game": float(np.mean([r["learn_seconds"] for r in per_game])),
-                }
-    bar.close()
-    results["cpu_seconds"] = round(time.perf_counter() - began, 1)
-    print(f"Table 3: mean real return over {args.games} games per split (95% interval); paper in brackets")
-    print(f"{'setting / model':<28}" + "".join(f"{s:>26}" for s in args.splits))
-    for key, row in results["rows"].items():
-        setting, name = key.split("/")
-        paper = PAPER.get((setting, name))
-        cells = []
-        for s in args.splits:
-            r = row[s]
-            ref = f" [{paper[SPLITS.index(s)]:+.2f}]" if paper and s in SPLITS else ""
-            cells.append(f"{r['mean']:+.2f} ({r['ci95'][0]:+.2f},{r['ci95'][1]:+.2f}){ref}")
-        print(f"{key:<28}" + "".join(f"{c:>26}" for c in cells))
-    print(f"CPU time: {results['cpu_seconds']:.0f} s")
+        for g in games:
+            for setting in args.settings:
+                for name in models:
+                    if (setting, name, split, int(g)) not in done:
+                        todo.append((split, ds, int(g), setting, name))
+    records = []
+    for split, ds, g, setting, name in tqdm(todo, desc="table 3", disable=args.no_progress):
+        world, config = models[name]
+        manual = ds[int(np.flatnonzero(np.asarray(ds.episode_games) == g)[0])].manual
+        result = run_game(setting, world, config["kind"], warm, ds.games[g], manual, encoder, budget, args.seed + g)
+        record = {"setting": setting, "model": name, "split": split, "game": g, "seed": args.seed + g, **result}
+        record["budget"] = budget.__dict__
+        records.append(record)
+        if args.records:
+            with args.records.open("a") as f:
+                f.write(json.dumps(record) + "\n")
+    wall, cpu = round(time.perf_counter() - began, 1), round(time.process_time() - began_cpu, 1)
+    all_records = _load_records([args.records]) if args.records else records
+    rows = table(all_records)
+    print_table(rows)
+    print(f"this run: {len(records)} game(s), {wall:.0f} s wall, {cpu:.0f} s CPU")
     if args.out:
-        args.out.write_text(json.dumps(results, indent=2))
+        args.out.write_text(
+            json.dumps(
+                {"budget": budget.__dict__, "seed": args.seed, "wall_seconds": wall, "cpu_seconds": cpu, "rows": rows},
+                indent=2,
+            )
+        )
     return 0

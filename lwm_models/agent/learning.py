@@ -78,19 +78,34 @@ def pretrain(
 
 
 def fit_labels(
-    policy: EmmaPolicy, manual: ManualBatch, history: np.ndarray, labels: np.ndarray, updates: int, lr: float
-) -> None:
-    """Full-batch supervised steps on (3-observation history, expert action) pairs of one manual."""
+    policy: EmmaPolicy,
+    manual: ManualBatch,
+    history: np.ndarray,
+    labels: np.ndarray,
+    steps: int,
+    lr: float,
+    batch: int = 256,
+    seed: int = 0,
+    optimizer: torch.optim.Optimizer | None = None,
+) -> list[float]:
+    """Supervised steps on (3-observation history, expert action) pairs of one manual: minibatches
+    of `batch` drawn at random (the whole set when it is smaller). Returns the losses. Pass an
+    optimizer to carry its state across calls (online imitation); else a fresh Adam at `lr`."""
     h = torch.from_numpy(np.ascontiguousarray(history))
     y = torch.as_tensor(np.asarray(labels, dtype=np.int64))
-    opt = torch.optim.Adam(policy.parameters(), lr=lr)
+    opt = optimizer or torch.optim.Adam(policy.parameters(), lr=lr)
+    rng = np.random.default_rng(seed)
+    losses = []
     policy.train()
-    for _ in range(updates):
-        loss = F.cross_entropy(policy(h, policy.id_values(manual).expand(len(h), -1, -1)), y)
+    for _ in range(steps):
+        i = torch.from_numpy(rng.integers(len(h), size=batch)) if len(h) > batch else slice(None)
+        loss = F.cross_entropy(policy(h[i], policy.id_values(manual).expand(len(y[i]), -1, -1)), y[i])
         opt.zero_grad()
         loss.backward()
         opt.step()
+        losses.append(loss.item())
     policy.eval()
+    return losses
 
 
 def manual_from_text_ids(text_ids: np.ndarray, features: torch.Tensor, lengths: torch.Tensor) -> ManualBatch:
@@ -140,6 +155,49 @@ def expert_labeller(game: GameSpec, seed: int = 0) -> Callable[[np.ndarray, int]
     return lambda obs, t: expert_actions(obs, ids, t, seed)
 
 
+@dataclass
+class Budget:
+    """What learning in one game may spend. The paper: 2,000 updates of 10 imagined episodes; here
+    fewer rounds, each followed by several minibatch steps on every state labelled so far."""
+
+    iterations: int = 40  # online imitation: rounds of imagination with the current policy
+    episodes: int = 16  # imagined episodes per round
+    grad_steps: int = 10  # minibatch steps after each round (filtered BC: iterations x grad_steps)
+    batch: int = 256
+    lr: float = 1e-3
+    plans_per_start: int = 8  # filtered BC: expert plans imagined from each start
+    keep: float = 0.25  # filtered BC: the share of each start's plans (highest imagined return) cloned
+    eval_episodes: int = 48
+
+
+def start_observations(game: GameSpec, seed: int = 0) -> np.ndarray:
+    """[24, 4, 3]: the game's first observation from each of its 24 starts. Resetting the game is
+    not acting in it, so the agent may imagine from these."""
+    engine = BatchedMessenger()
+    engine.reset([game] * len(STARTS), seed * 1_000 + np.arange(len(STARTS)), np.arange(len(STARTS)))
+    return engine.compact_observation()
+
+
+def labelled_states(
+    observations: np.ndarray,
+    lengths: np.ndarray,
+    max_steps: int,
+    labeller: Callable[[np.ndarray, int], np.ndarray] | None = None,
+    actions: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Histories [m, 3, 4, 3] of every state with a next action in imagined trajectories, and their
+    labels: labeller(observations [n, 4, 3], t), called once per step, or the trajectories' own
+    `actions` (actions[:, t] is taken in the state at t-1)."""
+    hist, labels = [], []
+    for t in range(1, max_steps + 1):
+        alive = np.flatnonzero(lengths > t)  # trajectories still running at step t-1
+        if len(alive) == 0:
+            break
+        hist.append(stack_history(observations[alive, :t]))
+        labels.append(actions[alive, t] if labeller is None else labeller(observations[alive, t - 1], t))
+    return np.concatenate(hist), np.concatenate(labels).astype(np.int64)
+
+
 def online_imitation_with(
     policy: EmmaPolicy,
     world: WorldModel,
@@ -147,23 +205,27 @@ def online_imitation_with(
     policy_manual: ManualBatch,
     labeller: Callable[[np.ndarray, int], np.ndarray],
     first_obs: np.ndarray,
-    updates: int = 50,
-    episodes_per_update: int = 16,
-    lr: float = 3e-4,
+    budget: Budget,
     seed: int = 0,
     max_steps: int = 32,
 ) -> list[float]:
-    """Online imitation learning inside the world model (see the module docstring).
+    """Online imitation inside the world model (see the module docstring), DAgger style: each
+    round the learner imagines `budget.episodes` trajectories (sampling) from starts drawn from
+    first_obs ([4, 3] or [k, 4, 3]), the labeller labels every imagined state, and the policy takes
+    `budget.grad_steps` minibatch steps on every state labelled so far. Returns the mean loss of
+    each round.
 
     world_manual is what the world model reads (the manual the human gave), policy_manual what the
     policy reads; labeller(observations [n, 4, 3], t) gives the expert's actions.
     """
-    opt = torch.optim.Adam(policy.parameters(), lr=lr)
+    starts = np.asarray(first_obs, dtype=np.uint8).reshape(-1, 4, 3)
+    rng = np.random.default_rng(seed)
     gen = torch.Generator().manual_seed(seed)
-    losses = []
-    for u in range(updates):
+    opt = torch.optim.Adam(policy.parameters(), lr=budget.lr)
+    hist, labels, losses = [], [], []
+    for u in range(budget.iterations):
         with torch.no_grad():
-            id_values = policy.id_values(policy_manual).expand(episodes_per_update, -1, -1)
+            id_values = policy.id_values(policy_manual).expand(budget.episodes, -1, -1)
 
         def learner(obs: np.ndarray, idx: np.ndarray, t: int, id_values=id_values) -> np.ndarray:
             return act(policy, stack_history(obs), id_values[: len(idx)], sample=True, generator=gen)
@@ -171,27 +233,25 @@ def online_imitation_with(
         im = imagine(
             world,
             world_manual,
-            first_obs,
-            n=episodes_per_update,
+            starts[rng.integers(len(starts), size=budget.episodes)],
+            n=budget.episodes,
             policy=learner,
             max_steps=max_steps,
             seed=seed * 10_000 + u,
         )
-        hist, labels = [], []
-        for t in range(1, max_steps + 1):
-            # States at step t-1 of trajectories still running then: one labeller call per step.
-            alive = np.flatnonzero(im.lengths > t)
-            if len(alive) == 0:
-                break
-            hist.append(stack_history(im.observations[alive, :t]))
-            labels.append(labeller(im.observations[alive, t - 1], t))
-        policy.train()
-        h = torch.from_numpy(np.concatenate(hist))
-        logits = policy(h, policy.id_values(policy_manual).expand(len(h), -1, -1))
-        loss = F.cross_entropy(logits, torch.from_numpy(np.concatenate(labels).astype(np.int64)))
-        opt.zero_grad()
-        loss.backward()
-        opt.step()
-        policy.eval()
-        losses.append(loss.item())
+        h, y = labelled_states(im.observations, im.lengths, max_steps, labeller)
+        hist.append(h)
+        labels.append(y)
+        round_losses = fit_labels(
+            policy,
+            policy_manual,
+            np.concatenate(hist),
+            np.concatenate(labels),
+            budget.grad_steps,
+            budget.lr,
+            budget.batch,
+            seed * 10_000 + u,
+            opt,
+        )
+        losses.append(float(np.mean(round_losses)))
     return losses

@@ -60,22 +60,51 @@ class EmmaPolicy(nn.Module):
         attn = torch.softmax(torch.einsum("ie,bde->bid", q, keys) / math.sqrt(keys.shape[-1]), dim=-1)
         return torch.einsum("bid,bde->bie", attn, values)
 
-    def forward(self, history: torch.Tensor, id_values: torch.Tensor) -> torch.Tensor:
-        """history: [B, 3, 4, 3] compact observations (oldest first); id_values: [B, 17, E].
-        Returns action logits [B, 5]."""
-        b = history.shape[0]
+    def entity_vectors(self, history: torch.Tensor, id_values: torch.Tensor):
+        """What is painted where: vectors [B, 3 frames, 4 channels, E] (entities: what their id read
+        from the manual; the avatar: its own embedding), rows and cols [B, 3, 4], present [B, 3, 4]."""
         e = self.config.embed
-        grid = torch.zeros(b, HISTORY, GRID, GRID, e, dtype=id_values.dtype, device=id_values.device)
         h = history.long()
-        ids, rows, cols = h[..., 0], h[..., 1], h[..., 2]  # [B, 3 frames, 4 channels]
-        bi = torch.arange(b)[:, None, None].expand_as(ids)
-        fi = torch.arange(HISTORY)[None, :, None].expand_as(ids)
-        # Entities: their manual-derived vectors; the avatar: its own embedding.
+        ids, rows, cols = h[..., 0], h[..., 1], h[..., 2]
         vec = torch.gather(id_values[:, None].expand(-1, HISTORY, -1, -1), 2, ids[..., None].expand(-1, -1, -1, e))
         is_avatar = torch.zeros_like(ids, dtype=torch.bool)
         is_avatar[..., 3] = True
         vec = torch.where(is_avatar[..., None], self.id_emb(ids), vec)
-        present = ids > 0
+        return vec, rows, cols, ids > 0
+
+    def forward(self, history: torch.Tensor, id_values: torch.Tensor) -> torch.Tensor:
+        """history: [B, 3, 4, 3] compact observations (oldest first); id_values: [B, 17, E].
+        Returns action logits [B, 5].
+
+        The first convolution reads a [B, 3E, 10, 10] grid that is zero but for at most 12 cells, so
+        it is computed from those cells alone: an entity in frame f at (r, c) adds
+        W[:, f, :, dy, dx] @ v to the output at (r - dy, c - dx). Same result as painting the grid
+        and convolving (see tests), at about a twentieth of the cost."""
+        b = history.shape[0]
+        vec, rows, cols, present = self.entity_vectors(history, id_values)
+        conv1 = self.conv[0]
+        c_out, k = conv1.out_channels, conv1.kernel_size[0]
+        w = conv1.weight.view(c_out, HISTORY, self.config.embed, k, k)
+        contrib = torch.einsum("bfne,cfeyx->bfnyxc", vec, w)  # [B, 3, 4, k, k, C]
+        offsets = torch.arange(k)
+        out_rows = rows[..., None, None] - offsets[:, None]  # [B, 3, 4, k(dy), 1]
+        out_cols = cols[..., None, None] - offsets[None, :]  # [B, 3, 4, 1, k(dx)]
+        out_rows, out_cols = torch.broadcast_tensors(out_rows, out_cols)
+        size = GRID - k + 1
+        valid = present[..., None, None] & (out_rows >= 0) & (out_rows < size) & (out_cols >= 0) & (out_cols < size)
+        bi = torch.arange(b)[:, None, None, None, None].expand_as(out_rows)
+        x = torch.zeros(b, size, size, c_out, dtype=contrib.dtype)
+        x.index_put_((bi[valid], out_rows[valid], out_cols[valid]), contrib[valid], accumulate=True)
+        x = x.permute(0, 3, 1, 2) + conv1.bias[None, :, None, None]
+        return self.mlp(self.conv[1:](x).flatten(1))
+
+    def forward_dense(self, history: torch.Tensor, id_values: torch.Tensor) -> torch.Tensor:
+        """The same logits by painting the grid and convolving it (the reference for forward)."""
+        b, e = history.shape[0], self.config.embed
+        vec, rows, cols, present = self.entity_vectors(history, id_values)
+        grid = torch.zeros(b, HISTORY, GRID, GRID, e, dtype=vec.dtype)
+        bi = torch.arange(b)[:, None, None].expand_as(rows)
+        fi = torch.arange(HISTORY)[None, :, None].expand_as(rows)
         grid.index_put_((bi[present], fi[present], rows[present], cols[present]), vec[present], accumulate=True)
         x = grid.permute(0, 1, 4, 2, 3).reshape(b, HISTORY * e, GRID, GRID)
         return self.mlp(self.conv(x).flatten(1))

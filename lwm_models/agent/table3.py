@@ -10,31 +10,25 @@ from __future__ import annotations
 
 import copy
 import time
-from dataclasses import dataclass
 
 import numpy as np
 
-from ..messenger.engine import BatchedMessenger
 from ..messenger.spec import GameSpec
 from ..world.base import WorldModel
 from ..world.frozen_text import FrozenTextEncoder
 from ..world.imagine import imagine
 from ..world.manual import manual_batch
 from .expert import expert_policy
-from .learning import evaluate_real, expert_labeller, fit_labels, online_imitation_with
-from .policy import EmmaPolicy, stack_history
-
-
-@dataclass
-class Budget:
-    """What one game's learning may spend (the paper: 2,000 updates of 10 imagined episodes)."""
-
-    updates: int = 20
-    episodes: int = 16
-    lr: float = 3e-4
-    filtered_plans: int = 32  # filtered BC: expert plans imagined per game
-    filtered_keep: float = 0.25  # the share with the highest imagined return that is cloned
-    eval_episodes: int = 48
+from .learning import (
+    Budget,
+    evaluate_real,
+    expert_labeller,
+    fit_labels,
+    labelled_states,
+    online_imitation_with,
+    start_observations,
+)
+from .policy import EmmaPolicy
 
 
 def filtered_behaviour_cloning(
@@ -43,21 +37,26 @@ def filtered_behaviour_cloning(
     world_manual,
     policy_manual,
     game: GameSpec,
-    first_obs: np.ndarray,
+    starts: np.ndarray,
     budget: Budget,
     seed: int = 0,
 ) -> float:
-    """The expert plans in the world model; the plans with the highest imagined return are cloned.
-    Returns the mean imagined return of the kept plans."""
-    im = imagine(world, world_manual, first_obs, n=budget.filtered_plans, policy=expert_policy(game, seed), seed=seed)
-    keep = np.argsort(-im.returns)[: max(1, int(round(budget.filtered_plans * budget.filtered_keep)))]
-    hist, labels = [], []
-    for i in keep:
-        n = int(im.lengths[i])
-        for t in range(1, n):
-            hist.append(stack_history(im.observations[i : i + 1, :t])[0])
-            labels.append(int(im.actions[i, t]))
-    fit_labels(policy, policy_manual, np.stack(hist), np.array(labels), budget.updates, budget.lr)
+    """The expert plans in the world model, `budget.plans_per_start` plans from each start; the
+    plans of each start with the highest imagined return are cloned (minibatch steps, as many as
+    online imitation takes). Returns the mean imagined return of the kept plans."""
+    k = budget.plans_per_start
+    first = np.repeat(np.asarray(starts, dtype=np.uint8).reshape(-1, 4, 3), k, axis=0)
+    im = imagine(world, world_manual, first, n=len(first), policy=expert_policy(game, seed), seed=seed)
+    per_start = max(1, int(round(k * budget.keep)))
+    # Ties (common: most plans imagine no reward) go to the shorter plan, then the first drawn.
+    order = np.lexsort((np.arange(len(first)), im.lengths, -im.returns, np.arange(len(first)) // k))
+    keep = order.reshape(-1, k)[:, :per_start].ravel()
+    hist, labels = labelled_states(
+        im.observations[keep], im.lengths[keep], im.actions.shape[1] - 1, actions=im.actions[keep]
+    )
+    fit_labels(
+        policy, policy_manual, hist, labels, budget.iterations * budget.grad_steps, budget.lr, budget.batch, seed
+    )
     return float(im.returns[keep].mean())
 
 
@@ -72,34 +71,30 @@ def run_game(
     budget: Budget,
     seed: int = 0,
 ) -> dict:
-    """Learn in imagination for one game and evaluate in the real game."""
-    engine = BatchedMessenger()
-    engine.reset([game], [seed])
-    first = engine.compact_observation()[0]
+    """Learn in imagination for one game (from its 24 start observations) and evaluate in the real
+    game."""
+    starts = start_observations(game, seed)
     world_manual = manual_batch(kind, manual, encoder, list(game.triples))
     policy_manual = manual_batch("emma", manual, encoder)
     policy = copy.deepcopy(warm)
-    began = time.perf_counter()
+    began, began_cpu = time.perf_counter(), time.process_time()
     if setting == "online_il":
         online_imitation_with(
-            policy,
-            world,
-            world_manual,
-            policy_manual,
-            expert_labeller(game, seed),
-            first,
-            budget.updates,
-            budget.episodes,
-            budget.lr,
-            seed,
+            policy, world, world_manual, policy_manual, expert_labeller(game, seed), starts, budget, seed
         )
     elif setting == "filtered_bc":
-        filtered_behaviour_cloning(policy, world, world_manual, policy_manual, game, first, budget, seed)
+        filtered_behaviour_cloning(policy, world, world_manual, policy_manual, game, starts, budget, seed)
     elif setting != "warm_start":
         raise ValueError(f"unknown setting {setting!r}")
-    learn_s = time.perf_counter() - began
+    learn_s, learn_cpu = time.perf_counter() - began, time.process_time() - began_cpu
     result = evaluate_real(policy, game, policy_manual, budget.eval_episodes, seed)
-    return {"return": result.mean, "wins": result.wins, "deaths": result.deaths, "learn_seconds": round(learn_s, 2)}
+    return {
+        "return": result.mean,
+        "wins": result.wins,
+        "deaths": result.deaths,
+        "learn_seconds": round(learn_s, 2),
+        "learn_cpu_seconds": round(learn_cpu, 2),
+    }
 
 
 def summarize(returns: list[float]) -> dict:
