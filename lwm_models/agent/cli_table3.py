@@ -8,6 +8,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import torch
 from tqdm import tqdm
 
 from ..data.dataset import TrajectoryDataset
@@ -51,6 +52,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--lr", type=float, default=Budget.lr)
     p.add_argument("--plans-per-start", type=int, default=Budget.plans_per_start, help="filtered BC: expert plans")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--threads", type=int, default=0, help="torch threads (0: torch's default)")
     p.add_argument("--out", type=Path, default=None, help="write the table as JSON")
     p.add_argument(
         "--records",
@@ -129,6 +131,8 @@ def run_table3(args: argparse.Namespace) -> int:
         if args.out:
             args.out.write_text(json.dumps({"rows": rows}, indent=2))
         return 0
+    if args.threads:
+        torch.set_num_threads(args.threads)
     models = {}
     pairs = args.models or [f"{k}={v}" for k, v in SHIPPED.items()]
     for pair in pairs:

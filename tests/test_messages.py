@@ -1,0 +1,52 @@
+"""The JSON payloads: every schema is valid, versioned and carries an example that validates."""
+
+from __future__ import annotations
+
+import copy
+import json
+
+import pytest
+
+from lwm_models import messages
+
+KINDS = messages.kinds()
+
+
+def test_every_payload_of_the_system_has_a_schema():
+    assert set(KINDS) == {
+        "error",
+        "execution_report",
+        "imagine_request",
+        "imagine_response",
+        "manual",
+        "plan",
+        "review_feedback",
+        "state",
+        "status",
+    }
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_schema_is_versioned_and_its_examples_validate(kind):
+    schema = json.loads((messages.SCHEMA_DIR / f"{kind}.schema.json").read_text())
+    assert "version" in schema["required"] and schema["properties"]["version"]["const"] == messages.VERSION
+    assert schema["examples"], "the README points readers to the schema's example"
+    for example in schema["examples"]:
+        assert messages.parse(kind, json.dumps(example)) == example
+        wrong = copy.deepcopy(example)
+        wrong["version"] = 2
+        with pytest.raises(messages.MessageError, match="version"):
+            messages.validate(kind, wrong)
+
+
+def test_parse_and_dump_errors_name_the_problem():
+    with pytest.raises(messages.MessageError, match="not JSON"):
+        messages.parse("manual", "{nope")
+    with pytest.raises(messages.MessageError, match="descriptions"):
+        messages.parse("manual", '{"version": 1, "descriptions": ["only one"]}')
+    with pytest.raises(messages.MessageError, match="no schema"):
+        messages.validate("telemetry", {})
+    text = messages.dump("review_feedback", {"review_id": "r", "plan_id": 1, "decision": "approve"})
+    assert json.loads(text)["version"] == 1
+    with pytest.raises(messages.MessageError, match="decision"):
+        messages.dump("review_feedback", {"review_id": "r", "plan_id": 1, "decision": "maybe"})
