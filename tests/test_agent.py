@@ -185,7 +185,7 @@ def test_table3_cli_records_resume_and_merge(tmp_path):
     assert first.returncode == 0, first.stderr
     rows = [json.loads(line) for line in records.read_text().splitlines()]
     assert {(r["setting"], r["model"]) for r in rows} == {
-        (s, m) for s in ("warm_start", "online_il") for m in ("emma", "observational")
+        (s, m) for s in ("warm_start", "online_il") for m in ("emma", "observational", "oracle")
     }
     assert all(-1.0 <= r["return"] <= 1.5 and r["split"] == "newall-test" for r in rows)
     again = subprocess.run(argv, capture_output=True, text=True, timeout=600)

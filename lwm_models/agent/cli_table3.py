@@ -15,7 +15,7 @@ from ..data.dataset import TrajectoryDataset
 from ..errors import LwmError
 from ..world.checkpoint import load_checkpoint
 from ..world.frozen_text import FrozenTextEncoder
-from ..world.shipped import SHIPPED, SHIPPED_POLICY
+from ..world.shipped import SHIPPED, SHIPPED_ORACLE, SHIPPED_POLICY
 from .learning import Budget
 from .policy import EmmaPolicy
 from .review import load_policy
@@ -37,7 +37,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--games", type=int, default=30, help="test games per split (the paper: 30)")
     p.add_argument("--splits", nargs="+", default=list(SPLITS))
     p.add_argument(
-        "--models", nargs="+", default=None, help="KIND=CHECKPOINT pairs (default: the shipped emma and observational)"
+        "--models",
+        nargs="+",
+        default=None,
+        help="NAME=CHECKPOINT pairs (default: the shipped emma, observational and oracle)",
     )
     p.add_argument(
         "--settings",
@@ -134,7 +137,8 @@ def run_table3(args: argparse.Namespace) -> int:
     if args.threads:
         torch.set_num_threads(args.threads)
     models = {}
-    pairs = args.models or [f"{k}={v}" for k, v in SHIPPED.items()]
+    shipped = {**SHIPPED, **({"oracle": SHIPPED_ORACLE} if (SHIPPED_ORACLE / "config.json").is_file() else {})}
+    pairs = args.models or [f"{k}={v}" for k, v in shipped.items()]
     for pair in pairs:
         if "=" not in pair:
             raise LwmError(f"--models takes KIND=CHECKPOINT pairs, got {pair!r}")
