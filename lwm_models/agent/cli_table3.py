@@ -110,7 +110,7 @@ def table(records: list[dict]) -> dict:
 
 def print_table(rows: dict) -> None:
     print("Table 3: mean real return over the test games of each split (95% interval); paper in brackets")
-    print(f"{'setting / model':<28}" + "".join(f"{s:>30}" for s in SPLITS))
+    print(f"{'setting / model':<28}" + "".join(f"{s:>36}" for s in SPLITS))
     for key, row in rows.items():
         setting, name = key.split("/")
         paper = PAPER.get((setting, name))
@@ -121,7 +121,7 @@ def print_table(rows: dict) -> None:
             cells.append(
                 "-" if r is None else f"{r['mean']:+.2f} ({r['ci95'][0]:+.2f},{r['ci95'][1]:+.2f}) n{r['games']}{ref}"
             )
-        print(f"{key:<28}" + "".join(f"{c:>30}" for c in cells))
+        print(f"{key:<28}" + "".join(f"{c:>36}" for c in cells))
 
 
 def run_table3(args: argparse.Namespace) -> int:
