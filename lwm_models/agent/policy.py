@@ -79,7 +79,8 @@ class EmmaPolicy(nn.Module):
         The first convolution reads a [B, 3E, 10, 10] grid that is zero but for at most 12 cells, so
         it is computed from those cells alone: an entity in frame f at (r, c) adds
         W[:, f, :, dy, dx] @ v to the output at (r - dy, c - dx). Same result as painting the grid
-        and convolving (see tests), at about a twentieth of the cost."""
+        and convolving (see tests), with a twentieth of the first convolution's multiply-adds
+        (the training step is 2.4x faster: benchmarks/policy_speed.py)."""
         b = history.shape[0]
         vec, rows, cols, present = self.entity_vectors(history, id_values)
         conv1 = self.conv[0]
