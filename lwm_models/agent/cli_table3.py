@@ -159,16 +159,17 @@ def run_table3(args: argparse.Namespace) -> int:
     for split in args.splits:
         ds = TrajectoryDataset(args.data, split)
         games = np.linspace(0, len(ds.games) - 1, min(args.games, len(ds.games))).round().astype(int)
-        for g in games:
+        episode_games = np.asarray(ds.episode_games)
+        for g in map(int, games):
+            manual = ds[int(np.flatnonzero(episode_games == g)[0])].manual  # the game's first episode's
             for setting in args.settings:
                 for name in models:
-                    if (setting, name, split, int(g)) not in done:
-                        todo.append((split, ds, int(g), setting, name))
+                    if (setting, name, split, g) not in done:
+                        todo.append((split, ds.games[g], g, manual, setting, name))
     records = []
-    for split, ds, g, setting, name in tqdm(todo, desc="table 3", disable=args.no_progress):
+    for split, game, g, manual, setting, name in tqdm(todo, desc="table 3", disable=args.no_progress):
         world, config = models[name]
-        manual = ds[int(np.flatnonzero(np.asarray(ds.episode_games) == g)[0])].manual
-        result = run_game(setting, world, config["kind"], warm, ds.games[g], manual, encoder, budget, args.seed + g)
+        result = run_game(setting, world, config["kind"], warm, game, manual, encoder, budget, args.seed + g)
         record = {"setting": setting, "model": name, "split": split, "game": g, "seed": args.seed + g, **result}
         record["budget"] = budget.__dict__
         records.append(record)

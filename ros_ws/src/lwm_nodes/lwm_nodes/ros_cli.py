@@ -25,7 +25,7 @@ from rclpy.signals import SignalHandlerOptions
 from std_msgs.msg import String
 
 from lwm_models import messages
-from lwm_nodes.common import EVENTS, LATCHED, ros_environment
+from lwm_nodes.common import EVENTS, LATCHED, make_executor, ros_environment
 
 
 def _payload(arg: str, raw: bool = False) -> str:
@@ -40,8 +40,6 @@ class BackgroundSpin:
     it before the node is destroyed: destroying a node under a spinning thread aborts."""
 
     def __init__(self, node: Node) -> None:
-        from lwm_nodes.common import make_executor
-
         self.executor = make_executor()
         self.executor.add_node(node)
         self.stop = threading.Event()
