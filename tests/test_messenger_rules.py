@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from lwm_models.errors import GameStateError, InvalidActionError, InvalidSpecError
-from lwm_models.messenger import GameSpec, MessengerEnv
+from lwm_models.messenger import BatchedMessenger, GameSpec, MessengerEnv
 from lwm_models.messenger.constants import (
     AVATAR_CHANNEL,
     AVATAR_NO_MESSAGE,
@@ -160,6 +160,7 @@ def test_pick_up_then_delivery():
     obs, r, term, trunc, _ = env.step(RIGHT)
     assert (r, term, trunc) == (1.0, True, False)
     assert avatar_cell(obs) == ((4, 7), AVATAR_WITH_MESSAGE), "a winning avatar stays on the board"
+    assert cell_of(obs, "ball") is None, "the delivered-to goal leaves the board"
 
 
 def test_enemy_has_priority_over_pick_up():
@@ -167,14 +168,116 @@ def test_enemy_has_priority_over_pick_up():
     place(env, avatar=(8, 8), enemy=(8, 10), message=(8, 10))
     obs, r, term, _, info = env.step(RIGHT)
     assert (r, term) == (-1.0, True)
-    assert not info["has_message"] and cell_of(obs, "queen") == (4, 5)
+    assert not info["has_message"] and avatar_cell(obs) is None
+    # Last frame: the overlapped message is removed too (before the avatar); the enemy stays.
+    assert cell_of(obs, "queen") is None and cell_of(obs, "dog") == (4, 5)
 
 
 def test_goal_without_message_kills_and_beats_the_message():
     env = make_env(enemy="immovable")
     place(env, avatar=(8, 8), message=(8, 10), goal=(8, 10))
-    _, r, term, _, info = env.step(RIGHT)
+    obs, r, term, _, info = env.step(RIGHT)
     assert (r, term) == (-1.0, True) and not info["has_message"]
+    assert avatar_cell(obs) is None and cell_of(obs, "queen") is None
+    assert cell_of(obs, "ball") == (4, 5), "the goal that killed the avatar stays"
+
+
+# ----------------------------------------------------------------- what the last frame shows
+
+
+def test_spec_example_death_while_overlapping_the_message_removes_it():
+    # The spec's example: avatar at (10, 10) without the message, immovable message at (10, 12),
+    # chaser enemy at (9, 13), action right. The chaser decides from (10, 10): down (to (10, 13))
+    # and left (to (9, 12)) both bring it closer. The avatar moves to (10, 12): on the message, and
+    # the enemy is at most 1 half-cell away on each axis either way, so the avatar dies.
+    shown = set()
+    for seed in range(20):
+        env = make_env(enemy="chaser", message="immovable", seed=seed)
+        place(env, avatar=(10, 10), enemy=(9, 13), message=(10, 12), goal=(0, 18))
+        obs, r, term, trunc, info = env.step(RIGHT)
+        assert env.positions[ENEMY] in {(10, 13), (9, 12)}
+        assert (r, term, trunc) == (-1.0, True, False)
+        assert not info["has_message"] and not env.alive
+        assert avatar_cell(obs) is None, "the avatar channel is empty after death"
+        assert cell_of(obs, "queen") is None, "the overlapped message is gone from the last frame"
+        assert info["half_cell_positions"]["message"] is None
+        assert cell_of(obs, "ball") == (0, 9)
+        shown.add(cell_of(obs, "dog"))
+    assert shown == {(5, 6), (4, 6)}  # (10, 13) shows in cell (5, 6), (9, 12) in (4, 6)
+
+
+def test_death_by_goal_while_overlapping_the_message_removes_it():
+    # Avatar (8, 8) -> (8, 10): on the message at (8, 10), and the goal at (9, 11) is 1 half-cell
+    # away on both axes (diagonal overlap). Goal without message: death, and the message goes.
+    env = make_env(enemy="immovable")
+    place(env, avatar=(8, 8), enemy=(18, 18), message=(8, 10), goal=(9, 11))
+    obs, r, term, _, info = env.step(RIGHT)
+    assert (r, term) == (-1.0, True) and not info["has_message"]
+    assert avatar_cell(obs) is None and cell_of(obs, "queen") is None
+    assert cell_of(obs, "ball") == (4, 5) and cell_of(obs, "dog") == (9, 9)
+
+
+def test_death_without_touching_the_message_leaves_every_entity_on_the_board():
+    # Avatar (8, 8) -> (8, 10) onto the immovable enemy; the message at (8, 12) is 2 half-cells
+    # away (no overlap), so it stays, as does the goal.
+    env = make_env(enemy="immovable")
+    place(env, avatar=(8, 8), enemy=(8, 10), message=(8, 12), goal=(0, 18))
+    obs, r, term, _, _ = env.step(RIGHT)
+    assert (r, term) == (-1.0, True) and avatar_cell(obs) is None
+    assert cell_of(obs, "dog") == (4, 5) and cell_of(obs, "queen") == (4, 6) and cell_of(obs, "ball") == (0, 9)
+
+
+def test_a_win_removes_the_goal_and_keeps_the_carrying_avatar():
+    # The avatar carries the message (the message is off the board). Avatar (8, 8) -> (8, 10); the
+    # immovable goal at (9, 11) overlaps diagonally (both offsets odd): reward +1, win.
+    env = make_env(enemy="immovable")
+    place(env, avatar=(8, 8), enemy=(18, 18), message=None, goal=(9, 11))
+    env.has_message = True
+    obs, r, term, trunc, info = env.step(RIGHT)
+    assert (r, term, trunc) == (1.0, True, False) and env.won
+    assert cell_of(obs, "ball") is None, "the goal is gone from the last frame of a win"
+    assert info["half_cell_positions"]["goal"] is None
+    assert avatar_cell(obs) == ((4, 5), AVATAR_WITH_MESSAGE)
+    assert cell_of(obs, "dog") == (9, 9) and cell_of(obs, "queen") is None
+
+
+def batched_copy(env: MessengerEnv) -> BatchedMessenger:
+    """A one-game batched engine in exactly the state of `env` (same seed, so same draws)."""
+    engine = BatchedMessenger(max_steps=env.max_steps)
+    engine.reset([env.spec], [env.seed], starts=[env.start])
+    engine.avatar_row[0], engine.avatar_col[0] = env.avatar
+    for k, pos in enumerate(env.positions):
+        engine.present[0, k] = pos is not None
+        if pos is not None:
+            engine.entity_row[0, k], engine.entity_col[0, k] = pos
+    engine.has_message[0] = env.has_message
+    engine.t = env.t
+    return engine
+
+
+@pytest.mark.parametrize(
+    "case",
+    [
+        dict(avatar=(10, 10), enemy=(9, 13), message=(10, 12), goal=(0, 18)),  # the spec's example
+        dict(avatar=(8, 8), enemy=(18, 18), message=(8, 10), goal=(9, 11)),  # goal death on the message
+        dict(avatar=(8, 8), enemy=(8, 10), message=(8, 10), goal=(0, 18)),  # enemy death on the message
+        dict(avatar=(8, 8), enemy=(8, 10), message=(8, 12), goal=(0, 18)),  # death, message untouched
+        dict(avatar=(8, 8), enemy=(18, 18), message=None, goal=(9, 11), carrying=True),  # win
+    ],
+)
+def test_batched_engine_shows_the_same_last_frame(case):
+    case = dict(case)
+    carrying = case.pop("carrying", False)
+    for seed in range(6):
+        env = make_env(enemy="chaser", seed=seed)
+        place(env, **case)
+        env.has_message = carrying
+        engine = batched_copy(env)
+        obs, r, term, trunc, _ = env.step(RIGHT)
+        rewards, terminated, truncated, _ = engine.step(np.array([RIGHT]))
+        np.testing.assert_array_equal(engine.observation()[0], obs)
+        assert (float(rewards[0]), bool(terminated[0]), bool(truncated[0])) == (r, term, trunc)
+        assert term
 
 
 def test_enemy_kills_a_carrier_too():

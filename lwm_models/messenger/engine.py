@@ -7,7 +7,8 @@ enemy, message, goal throughout):
 - `entity_row`, `entity_col` [N, 3] half-cells; `avatar_row`, `avatar_col` [N] (always even);
 - `movement` [N, 3] index into MOVEMENTS; `entity_ids` [N, 3] observation ids;
 - `channel_roles` [N, 3]: entity channel c shows role channel_roles[n, c];
-- `present` [N, 3] (the message disappears when picked up), `has_message`, `alive`, `won`, `t`.
+- `present` [N, 3] (the message disappears when the avatar overlaps it, the goal on a win),
+  `has_message`, `alive`, `won`, `t`.
 
 Games that have ended stay frozen: later actions are ignored and give reward 0.
 """
@@ -188,8 +189,11 @@ class BatchedMessenger:
         rewards[dies] = REWARD_DEATH
         rewards[picks] = REWARD_PICKUP
         rewards[wins] = REWARD_WIN
+        # The message leaves the board on any overlap (a pick-up, or a death in the same step:
+        # it is removed before the avatar is); on a win the goal leaves it (spec §1, last frame).
+        self.present[hit[:, MESSAGE], MESSAGE] = False
+        self.present[wins, GOAL] = False
         self.has_message |= picks
-        self.present[picks, MESSAGE] = False
         self.alive &= ~dies
         self.won |= wins
 

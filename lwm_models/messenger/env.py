@@ -126,11 +126,16 @@ class MessengerEnv:
             self.avatar = target
 
         # (3) Collisions in priority order: enemy, goal without message, message, goal with it.
+        # What the last frame shows (spec §1): a message the avatar overlaps leaves the board even
+        # when the avatar dies in the same step (it is removed before the avatar is), and on a win
+        # the goal leaves the board while the avatar (carrying the message) stays.
         enemy, message, goal = (self._overlaps(k) for k in range(3))
         reward = 0.0
         if enemy or (goal and not self.has_message):
             reward = REWARD_DEATH
             self.alive = False
+            if message:  # only possible without the message: a carried message is off the board
+                self.positions[1] = None
         elif message and not self.has_message:
             reward = REWARD_PICKUP
             self.has_message = True
@@ -138,6 +143,7 @@ class MessengerEnv:
         elif goal and self.has_message:
             reward = REWARD_WIN
             self.won = True
+            self.positions[2] = None
 
         terminated = not self.alive or self.won
         truncated = not terminated and self.t >= self.max_steps
