@@ -65,6 +65,17 @@ def test_resuming_continues_exactly(tiny_data, tmp_path):
         torch.testing.assert_close(v, w, msg=k)
 
 
+def test_decoder_overrides_reach_the_model(tiny_data, tmp_path):
+    # --kv-heads and --attn-dropout replace the preset's values (recorded in the checkpoint config).
+    train(args(tiny_data, tmp_path / "run", preset="small", steps=2, eval_every=2, kv_heads=4, attn_dropout=0.1))
+    model, config = load_checkpoint(tmp_path / "run" / "last")
+    assert config["config"]["decoder"]["kv_heads"] == 4 and config["config"]["decoder"]["attn_dropout"] == 0.1
+    assert model.decoder_config.num_kv_heads == 4
+    train(args(tiny_data, tmp_path / "default", preset="small", steps=2, eval_every=2))
+    _, config = load_checkpoint(tmp_path / "default" / "last")
+    assert config["config"]["decoder"]["kv_heads"] == 1 and config["config"]["decoder"]["attn_dropout"] == 0.0
+
+
 def test_resume_refuses_another_model(tiny_data, tmp_path):
     train(args(tiny_data, tmp_path / "run", steps=2, eval_every=2))
     with pytest.raises(Exception, match="observational"):

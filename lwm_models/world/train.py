@@ -53,6 +53,7 @@ class TrainArgs:
     eval_episodes: int | None = None  # None: the whole eval split
     bf16: bool = False  # bf16 autocast on CPU (speed option)
     attn_dropout: float | None = None  # None: the preset's dropout (paper 0.1); 0 enables fused attention
+    kv_heads: int | None = None  # None: the preset's key/value heads (small: 1, multi-query); = heads: multi-head
     threads: int | None = None  # torch threads; None leaves PyTorch's default
     tensorboard: bool = False
     progress: bool = True
@@ -158,10 +159,9 @@ def train(args: TrainArgs, log=print) -> dict:
     last, best_dir = out / "last", out / "best"
 
     config = PRESETS[args.preset]
-    if args.attn_dropout is not None:
-        config = type(config)(
-            type(config.decoder)(**{**asdict(config.decoder), "attn_dropout": args.attn_dropout}), config.text
-        )
+    overrides = {k: v for k, v in (("attn_dropout", args.attn_dropout), ("kv_heads", args.kv_heads)) if v is not None}
+    if overrides:
+        config = type(config)(type(config.decoder)(**{**asdict(config.decoder), **overrides}), config.text)
     resuming = (last / "config.json").is_file() and (last / "train_state.json").is_file()
     if resuming:
         model, saved = load_checkpoint(last, kind=args.kind)
@@ -239,6 +239,7 @@ def train(args: TrainArgs, log=print) -> dict:
 
         bar = tqdm(total=args.steps, initial=step, unit="step", desc=f"train {args.kind}")
     began = time.perf_counter()
+    cpu_began = time.process_time()  # this process's CPU time: comparable across runs sharing a machine
     window: list[float] = []
     stop_reason = "steps"
     while step < args.steps:
@@ -268,6 +269,7 @@ def train(args: TrainArgs, log=print) -> dict:
                     "lr": lr,
                     "grad_norm": grad_norm,
                     "elapsed_s": round(time.perf_counter() - began, 1),
+                    "cpu_s": round(time.process_time() - cpu_began, 1),
                     "seed": args.seed,
                 }
             )
@@ -276,8 +278,17 @@ def train(args: TrainArgs, log=print) -> dict:
         if step % args.eval_every == 0 or step == args.steps or out_of_time:
             dev = None
             if rank == 0:
+                eval_began = time.perf_counter()
                 dev = evaluate_loss(model, dev_data, limit=args.eval_episodes, bf16=args.bf16)
-                record({"step": step, **{f"dev_{k}": v for k, v in dev.items()}, "seed": args.seed})
+                record(
+                    {
+                        "step": step,
+                        **{f"dev_{k}": v for k, v in dev.items()},
+                        "elapsed_s": round(eval_began - began, 1),  # wall-clock since the start, when this eval began
+                        "eval_s": round(time.perf_counter() - eval_began, 1),
+                        "seed": args.seed,
+                    }
+                )
                 if bar:
                     bar.write(f"step {step}: {args.eval_split} total {dev['total']:.4f} (obs {dev['obs']:.4f})")
             checkpoint(dev)
