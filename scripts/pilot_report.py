@@ -1,0 +1,154 @@
+#!/usr/bin/env python
+"""Summarise the world-model pilot (scripts/pilot.sh): per variant, the steps done, the speed, and
+the NewAll-dev cross-entropy at equal wall-clock time and at equal steps; plots dev CE against
+time and against steps.
+
+Reads runs/pilot-*/metrics.jsonl (partial runs are fine). Times are wall-clock seconds since the
+run's training loop began (data loading excluded), evaluations included, as `--max-minutes`
+counts them; CE "at T minutes" is that of the last dev evaluation that had begun by T.
+
+Usage: .venv/bin/python scripts/pilot_report.py [--runs runs] [--png results/pilot_dev_ce.png]
+       [--minutes 10 20 30 40] [--steps 250 500 750 1000 1250]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import statistics
+from pathlib import Path
+
+ORDER = ["base", "mha", "attndrop", "lr1e-3", "seed1", "bf16"]
+
+
+def load(path: Path) -> tuple[list[dict], list[dict]]:
+    """(train lines, dev lines) of a metrics.jsonl; a torn last line is ignored."""
+    train, dev = [], []
+    for line in path.read_text().splitlines():
+        try:
+            entry = json.loads(line)
+        except json.JSONDecodeError:
+            continue
+        (dev if "dev_total" in entry else train).append(entry)
+    # Dev lines of older runs carry no time: take that of the train line at the same step.
+    when = {e["step"]: e["elapsed_s"] for e in train if "elapsed_s" in e}
+    for e in dev:
+        e.setdefault("elapsed_s", when.get(e["step"], math.nan))
+    # The final evaluation can be recorded twice (time budget and last step): keep the first.
+    seen, unique = set(), []
+    for e in dev:
+        if e["step"] not in seen:
+            seen.add(e["step"])
+            unique.append(e)
+    return train, unique
+
+
+def speed(train: list[dict], dev_steps: set[int]) -> tuple[float, float]:
+    """Median wall-clock and CPU seconds per step over 50-step windows without an evaluation."""
+    wall, cpu = [], []
+    for a, b in zip(train, train[1:]):
+        if a["step"] in dev_steps or b["step"] <= a["step"]:
+            continue
+        n = b["step"] - a["step"]
+        wall.append((b["elapsed_s"] - a["elapsed_s"]) / n)
+        if "cpu_s" in a and "cpu_s" in b:
+            cpu.append((b["cpu_s"] - a["cpu_s"]) / n)
+    return (statistics.median(wall) if wall else math.nan, statistics.median(cpu) if cpu else math.nan)
+
+
+def at_minutes(dev: list[dict], minutes: float) -> dict | None:
+    began = [e for e in dev if e["elapsed_s"] <= 60 * minutes]
+    return began[-1] if began else None
+
+
+def status(run: Path) -> str:
+    if (run / "DONE").is_file():
+        return "done"
+    return "running?" if (run / "metrics.jsonl").is_file() else "not started"
+
+
+def fmt(x: float | None, digits: int = 4) -> str:
+    return "-" if x is None or (isinstance(x, float) and math.isnan(x)) else f"{x:.{digits}f}"
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--runs", default="runs", help="directory holding pilot-<variant>/")
+    ap.add_argument("--png", default="results/pilot_dev_ce.png", help="plot file ('' for none)")
+    ap.add_argument("--minutes", type=float, nargs="+", default=[10, 20, 30, 40])
+    ap.add_argument("--steps", type=int, nargs="+", default=[250, 500, 750, 1000, 1250])
+    args = ap.parse_args()
+
+    runs = sorted(
+        (p for p in Path(args.runs).glob("pilot-*") if p.is_dir() and ".partial-" not in p.name),
+        key=lambda p: (ORDER.index(p.name[6:]) if p.name[6:] in ORDER else len(ORDER), p.name),
+    )
+    data = {}
+    for run in runs:
+        metrics = run / "metrics.jsonl"
+        if metrics.is_file():
+            data[run.name[6:]] = (run, *load(metrics))
+    if not data:
+        print(f"no pilot runs with metrics under {args.runs}/pilot-*")
+        return 1
+
+    mins = " ".join(f"{'@' + format(m, 'g') + 'min':>16}" for m in args.minutes)
+    print(f"{'variant':<10} {'status':<11} {'steps':>6} {'min':>6} {'s/step':>7} {'cpu/step':>8} {'eval_s':>6}  {mins}")
+    for name, (run, train, dev) in data.items():
+        steps = max([e["step"] for e in train + dev], default=0)
+        minutes = max([e.get("elapsed_s", 0) for e in train] + [0]) / 60
+        wall, cpu = speed(train, {e["step"] for e in dev})
+        evals = [e["eval_s"] for e in dev if "eval_s" in e]
+        cells = []
+        for m in args.minutes:
+            e = at_minutes(dev, m) if 60 * m <= 60 * minutes + 1 or status(run) == "done" else None
+            cells.append(f"{fmt(e['dev_total']) + ' (' + str(e['step']) + ')' if e else '-':>16}")
+        mean_eval = statistics.mean(evals) if evals else None
+        print(
+            f"{name:<10} {status(run):<11} {steps:>6} {minutes:>6.1f} {fmt(wall, 3):>7} {fmt(cpu, 3):>8} "
+            f"{fmt(mean_eval, 1):>6}  {' '.join(cells)}"
+        )
+    print("  @T min: NewAll-dev total CE (step) of the last evaluation begun by T minutes of training")
+    print("  ('-' while a run has not trained that long yet)")
+
+    print(f"\n{'variant':<10} " + " ".join(f"{'step ' + str(s):>11}" for s in args.steps) + f" {'best':>16}")
+    for name, (_, _, dev) in data.items():
+        by_step = {e["step"]: e["dev_total"] for e in dev}
+        best = min(dev, key=lambda e: e["dev_total"]) if dev else None
+        row = " ".join(f"{fmt(by_step.get(s)):>11}" for s in args.steps)
+        print(f"{name:<10} {row} {fmt(best['dev_total']) + ' (' + str(best['step']) + ')' if best else '-':>16}")
+    print("  NewAll-dev total CE at equal steps (the per-step quality, whatever the speed)")
+
+    if args.png:
+        try:
+            import matplotlib
+
+            matplotlib.use("Agg")
+            import matplotlib.pyplot as plt
+        except ImportError:
+            print("\nmatplotlib is not installed: no plot")
+            return 0
+        fig, axes = plt.subplots(1, 2, figsize=(12, 4.5), sharey=True)
+        for name, (_, _, dev) in data.items():
+            if not dev:
+                continue
+            axes[0].plot([e["elapsed_s"] / 60 for e in dev], [e["dev_total"] for e in dev], marker=".", label=name)
+            axes[1].plot([e["step"] for e in dev], [e["dev_total"] for e in dev], marker=".", label=name)
+        axes[0].set_xlabel("training wall-clock (min, 1 thread, evaluations included)")
+        axes[1].set_xlabel("step")
+        axes[0].set_ylabel("NewAll-dev total CE")
+        for ax in axes:
+            ax.set_yscale("log")
+            ax.grid(True, which="both", alpha=0.3)
+            ax.legend()
+        fig.suptitle("EMMA-LWM pilot (small preset, cosine schedule of the long run, 1 thread)")
+        fig.tight_layout()
+        Path(args.png).parent.mkdir(parents=True, exist_ok=True)
+        fig.savefig(args.png, dpi=110)
+        print(f"\nplot: {args.png}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
