@@ -22,8 +22,7 @@ import torch
 from lwm_models.agent.agent import Correction, PlanReviewAgent
 from lwm_models.agent.expert import expert_actions, role_ids
 from lwm_models.agent.learning import Budget, evaluate_real, expert_labeller, start_observations
-from lwm_models.agent.policy import EmmaPolicy
-from lwm_models.agent.review import load_policy
+from lwm_models.agent.policy import EmmaPolicy, load_policy
 from lwm_models.data.dataset import TrajectoryDataset
 from lwm_models.messenger.engine import BatchedMessenger
 from lwm_models.world.checkpoint import load_checkpoint

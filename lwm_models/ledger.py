@@ -13,7 +13,7 @@ import time
 from pathlib import Path
 
 DEFAULT_LEDGER = Path(os.environ.get("LWM_LEDGER", "logs/ledger.sqlite"))
-KINDS = ("plan", "feedback", "manual", "report")
+KINDS = ("plan", "feedback", "manual", "report", "label_request", "labels", "policy")
 
 
 class Ledger:
@@ -70,6 +70,12 @@ def describe(record: dict) -> str:
         what = f"feedback on plan {p['plan_id']}: {p['decision']}{detail}"
     elif record["kind"] == "manual":
         what = f"manual v{p['manual_version']} from {p.get('source', '?')}: {p['descriptions']}"
+    elif record["kind"] == "label_request":
+        what = f"label request {p['request_id']} (round {p['round']}/{p['rounds']}): {p['states']} states"
+    elif record["kind"] == "labels":
+        what = f"labels for request {p['request_id']}: {p['labels']} state(s)"
+    elif record["kind"] == "policy":
+        what = f"policy saved after feedback #{p.get('after')}: {p['labelled']} labelled states ({p['path']})"
     else:
         what = (
             f"executed plan {p['plan_id']}: real return {p['real_return']:+.2f} "

@@ -8,6 +8,7 @@ import torch
 
 from lwm_models.agent.agent import Correction, FeedbackError, PlanReviewAgent
 from lwm_models.agent.expert import expert_actions, role_ids
+from lwm_models.agent.imaginer import LocalImaginer
 from lwm_models.agent.learning import Budget, evaluate_real, expert_labeller, labelled_states, start_observations
 from lwm_models.agent.policy import EmmaPolicy
 from lwm_models.data.splits import load_split
@@ -37,7 +38,8 @@ def make_agent(agent_parts) -> PlanReviewAgent:
     game, first, encoder = agent_parts
     torch.manual_seed(0)
     world = build_model("emma", PRESETS["tiny"]).eval()
-    return PlanReviewAgent(world, "emma", EmmaPolicy(), encoder, first, list(MANUAL), max_steps=6)
+    imaginer = LocalImaginer(world, manual_batch("emma", MANUAL, encoder))
+    return PlanReviewAgent(EmmaPolicy(), encoder, imaginer, list(MANUAL), max_steps=6, futures=3)
 
 
 def test_expert_reproduces_go_to_goal():
@@ -68,7 +70,7 @@ def test_start_observations_are_the_24_starts():
 
 
 def test_online_imitation_in_the_shipped_world_model_learns_the_expert():
-    from lwm_models.agent.review import load_policy
+    from lwm_models.agent.policy import load_policy
     from lwm_models.world.checkpoint import load_checkpoint
     from lwm_models.world.shipped import SHIPPED, SHIPPED_POLICY
 
@@ -91,52 +93,62 @@ def test_online_imitation_in_the_shipped_world_model_learns_the_expert():
     assert len(losses) == 8 and np.mean(losses[-2:]) < 0.8 * np.mean(losses[:2])
 
 
-def test_plan_and_manual_feedback(agent_parts):
+def test_plan_carries_its_futures_and_manual_feedback(agent_parts):
     agent = make_agent(agent_parts)
-    plan = agent.make_plan(seed=1)
-    assert plan.plan_id == 1 and plan.manual_version == 1
+    first = agent_parts[1]
+    plan = agent.make_plan(first, plan_id=1, seed=1)
+    assert plan.plan_id == 1
     assert len(plan.observations) == len(plan.actions) + 1 and len(plan.confidence) == len(plan.actions)
-    assert plan.observations[0] == agent_parts[1].tolist()
-    assert agent.set_manual(list(reversed(MANUAL))) == 2
-    assert agent.make_plan().manual_version == 2
+    assert len(plan.agreement) == len(plan.actions)
+    assert plan.observations[0] == first.tolist()
+    f = plan.futures
+    assert f["k"] == 3 and len(f["returns"]) == 3 and 0 <= f["death_share"] <= 1
+    assert abs(f["return_mean"] - np.mean(f["returns"])) < 1e-3
+    before = agent.id_values(1).clone()
+    agent.set_manual(list(reversed(MANUAL)))
+    assert agent.manual == list(reversed(MANUAL))
+    assert not torch.equal(before, agent.id_values(1))  # the policy reads the new manual
 
 
 @pytest.mark.parametrize(
     "feedback",
     [
-        lambda a: a.set_manual(MANUAL[:2]),
-        lambda a: a.set_manual(["", "x", "y"]),
-        lambda a: a.set_manual("one string"),
-        lambda a: a.correct([Correction(step=99, action=1)]),
-        lambda a: a.correct([Correction(step=1, action=7)]),
-        lambda a: a.correct([Correction(step=0, action=1)]),
+        lambda a, p: a.set_manual(MANUAL[:2]),
+        lambda a, p: a.set_manual(["", "x", "y"]),
+        lambda a, p: a.set_manual("one string"),
+        lambda a, p: a.correct(p, [Correction(step=99, action=1)]),
+        lambda a, p: a.correct(p, [Correction(step=1, action=7)]),
+        lambda a, p: a.correct(p, [Correction(step=0, action=1)]),
+        lambda a, p: a.clone([{"observations": p.observations[:2], "actions": [1, 2]}], 5),
     ],
 )
 def test_rejected_feedback_changes_nothing(agent_parts, feedback):
     agent = make_agent(agent_parts)
-    agent.make_plan()
+    plan = agent.make_plan(agent_parts[1], 1)
     before = agent.snapshot()
     with pytest.raises(FeedbackError):
-        feedback(agent)
+        feedback(agent, plan)
     after = agent.snapshot()
-    assert before["manual"] == after["manual"] and before["manual_version"] == after["manual_version"]
-    assert before["plan"] == after["plan"] and before["labelled"] == after["labelled"]
+    assert before["manual"] == after["manual"] and before["labelled"] == after["labelled"]
     for k, v in before["policy"].items():
         assert torch.equal(v, after["policy"][k])
 
 
 def test_corrections_teach_the_policy(agent_parts):
     agent = make_agent(agent_parts)
-    plan = agent.make_plan()
+    plan = agent.make_plan(agent_parts[1], 1)
     wanted = (plan.actions[0] + 1) % 5
-    agent.correct([Correction(step=1, action=wanted)], updates=60)
-    assert agent.make_plan().actions[0] == wanted
+    agent.correct(plan, [Correction(step=1, action=wanted)], updates=60)
+    assert agent.make_plan(agent_parts[1], 2).actions[0] == wanted
 
 
 def test_online_imitation_and_real_evaluation(agent_parts):
     game, first, encoder = agent_parts
     agent = make_agent(agent_parts)
-    losses = agent.imitate(expert_labeller(game), Budget(iterations=3, episodes=4, grad_steps=2))
+    from lwm_models.agent.learning import expert_rounds
+
+    labels = expert_rounds(expert_labeller(game), agent.max_steps)
+    losses = agent.imitate(labels, first, Budget(iterations=3, episodes=4, grad_steps=2))
     assert len(losses) == 3 and all(np.isfinite(losses))
     result = evaluate_real(agent.policy, game, manual_batch("emma", MANUAL, encoder), episodes=48)
     assert result.returns.shape == (48,) and -1.0 <= result.mean <= 1.5

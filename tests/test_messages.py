@@ -18,6 +18,8 @@ def test_every_payload_of_the_system_has_a_schema():
         "execution_report",
         "imagine_request",
         "imagine_response",
+        "label_request",
+        "labels",
         "manual",
         "plan",
         "review_feedback",

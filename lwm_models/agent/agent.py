@@ -1,19 +1,21 @@
 """The plan-review agent: in an unseen game it may not act until a person has seen its plan.
 
-It holds a world model, a policy and the manual it believes. A plan is one imagined trajectory of
-the current policy (argmax actions) with its imagined rewards, done flags and the world model's
-confidence. Feedback it takes:
-- a manual (three descriptions), which replaces the manual both the world model and the policy
-  read (language feedback);
-- action corrections for steps of the current plan (the expert's labels for those states),
-  which the policy is fine-tuned on;
-- online imitation with a labeller (the simulated human: go_to_goal reading the true manual).
+It holds a policy, the manual it believes and what it has been taught in this game, but no world
+model: it imagines through an imaginer (the simulator's `/lwm/imagine`, see imaginer.py). A plan
+is the policy's imagined trajectory (argmax actions) with K more sampled futures of the same
+policy from the same start, so a reviewer sees how sure the plan is. Feedback it learns from:
+- a manual (three descriptions) that replaces the one the policy reads (the simulator's world
+  model takes the same manual from /feedback/manual);
+- corrections: the right action for states of the shown plan;
+- online imitation: rounds of imagined episodes whose states the reviewer labels (DAgger);
+- demonstrations: the reviewer's own plans, cloned (filtered behaviour cloning).
 A rejected feedback raises FeedbackError and leaves policy, plan and manual unchanged.
 """
 
 from __future__ import annotations
 
 import copy
+import itertools
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
@@ -21,12 +23,11 @@ import numpy as np
 import torch
 
 from ..errors import LwmError
-from ..messenger.constants import NUM_ACTIONS
-from ..world.base import WorldModel
+from ..messenger.constants import CORNERS, NUM_ACTIONS
 from ..world.frozen_text import FrozenTextEncoder
-from ..world.imagine import imagine
+from ..world.imagine import Imagination
 from ..world.manual import ManualError, manual_batch
-from .learning import Budget, fit_labels, online_imitation_with
+from .learning import Budget, LabelledSet, RoundLabeller, fit_labels, online_imitation
 from .policy import EmmaPolicy, act, stack_history
 
 
@@ -44,9 +45,17 @@ class Plan:
     dones: list[bool]
     confidence: list[float]
     imagined_return: float
+    agreement: list[float] = field(default_factory=list)
+    futures: dict = field(default_factory=dict)
+    start_step: int = 0
 
     def to_json(self) -> dict:
         return dict(self.__dict__)
+
+    @property
+    def dies(self) -> bool:
+        """The shown trajectory ends in death (a -1 reward)."""
+        return any(r < 0 for r in self.rewards)
 
 
 @dataclass
@@ -55,117 +64,197 @@ class Correction:
     action: int
 
 
+def start_observations_like(obs: np.ndarray) -> np.ndarray:
+    """[24, 4, 3]: the game's 24 starts as seen from its first observation: the four sprites
+    (three entities, the avatar) on the four start cells in every order, channel order kept.
+    Resetting the game is not acting in it, and this needs not even that."""
+    obs = np.asarray(obs, dtype=np.uint8)
+    out = np.repeat(obs[None], 24, axis=0)
+    for i, cells in enumerate(itertools.permutations(CORNERS)):
+        out[i, :, 1:] = np.asarray(cells)
+    return out
+
+
+def plan_from(im: Imagination, plan_id: int, start_step: int = 0) -> Plan:
+    """Trajectory 0 is shown; the others are its sampled futures."""
+    n = int(im.lengths[0])
+    k = len(im.lengths) - 1
+    returns = im.returns[1:]
+    died = (im.rewards[1:] < 0).any(1) if k else np.zeros(0, dtype=bool)
+    won = (im.rewards[1:] >= 1).any(1) if k else np.zeros(0, dtype=bool)
+    agreement = []
+    for t in range(1, n):
+        running = np.flatnonzero(im.lengths[1:] > t) + 1
+        same = (im.observations[running, t, 3] == im.observations[0, t, 3]).all(-1)
+        agreement.append(round(float(same.mean()) if len(running) else 0.0, 4))
+    return Plan(
+        plan_id=plan_id,
+        manual_version=im.manual_version,
+        actions=im.actions[0, 1:n].tolist(),
+        observations=im.observations[0, :n].tolist(),
+        rewards=im.rewards[0, 1:n].tolist(),
+        dones=im.dones[0, 1:n].tolist(),
+        confidence=im.confidence()[0, 1:n].round(4).tolist(),
+        imagined_return=float(im.returns[0]),
+        agreement=agreement,
+        futures={
+            "k": k,
+            "death_share": round(float(died.mean()) if k else 0.0, 4),
+            "win_share": round(float(won.mean()) if k else 0.0, 4),
+            "return_mean": round(float(returns.mean()) if k else 0.0, 4),
+            "return_std": round(float(returns.std()) if k else 0.0, 4),
+            "returns": [round(float(r), 4) for r in returns],
+            "lengths": [int(x) - 1 for x in im.lengths[1:]],
+        },
+        start_step=start_step,
+    )
+
+
 @dataclass
 class PlanReviewAgent:
-    world: WorldModel
-    world_kind: str
     policy: EmmaPolicy
     encoder: FrozenTextEncoder | None
-    first_obs: np.ndarray
+    imaginer: object  # ServiceImaginer or LocalImaginer
     manual: list[str]
     max_steps: int = 32
     lr: float = 1e-3
-    starts: np.ndarray | None = None  # first observations imagination may start from (default: first_obs)
-    manual_version: int = 1
-    plan: Plan | None = None
-    labelled: list[tuple[np.ndarray, int]] = field(default_factory=list)
-    _plans: int = 0
+    futures: int = 8
+    labelled: LabelledSet = field(default_factory=LabelledSet)
 
     def __post_init__(self) -> None:
-        self._set_batches(self.manual)
+        self._policy_manual = self._encode(self.manual)
 
-    def _set_batches(self, manual: Sequence[str]) -> None:
+    def _encode(self, manual: Sequence[str]):
+        if not isinstance(manual, (list, tuple)):
+            raise FeedbackError("a manual is a list of 3 descriptions")
         try:
-            self._world_manual = manual_batch(self.world_kind, manual, self.encoder)
-            self._policy_manual = manual_batch("emma", manual, self.encoder)
+            return manual_batch("emma", list(manual), self.encoder)
         except ManualError as exc:
             raise FeedbackError(str(exc)) from None
 
-    # ---------------------------------------------------------------- plans
-    def make_plan(self, seed: int = 0) -> Plan:
+    @property
+    def policy_manual(self):
+        return self._policy_manual
+
+    # ---------------------------------------------------------------- acting
+    def id_values(self, n: int) -> torch.Tensor:
         with torch.no_grad():
-            id_values = self.policy.id_values(self._policy_manual)
+            return self.policy.id_values(self._policy_manual).expand(n, -1, -1)
+
+    def greedy(self, before: Sequence = ()) -> Callable[[np.ndarray, np.ndarray, int], np.ndarray]:
+        """The policy's argmax actions, as an imagination policy; `before`: real observations that
+        preceded the imagination's start (the policy reads the last 3)."""
+        values = self.id_values(1)
+        prefix = np.asarray(before, dtype=np.uint8).reshape(-1, 4, 3)[-2:]
 
         def policy(obs: np.ndarray, idx: np.ndarray, t: int) -> np.ndarray:
-            return act(self.policy, stack_history(obs), id_values.expand(len(idx), -1, -1), sample=False)
+            if len(prefix):
+                obs = np.concatenate([np.broadcast_to(prefix, (len(obs), *prefix.shape)), obs], axis=1)
+            return act(self.policy, stack_history(obs), values.expand(len(idx), -1, -1), sample=False)
 
-        im = imagine(
-            self.world, self._world_manual, self.first_obs, n=1, policy=policy, max_steps=self.max_steps, seed=seed
+        return policy
+
+    def act(self, history: Sequence) -> int:
+        """The argmax action after the real observations so far."""
+        obs = np.asarray(history, dtype=np.uint8)[None]
+        return int(act(self.policy, stack_history(obs), self.id_values(1), sample=False)[0])
+
+    def make_plan(
+        self, start: np.ndarray, plan_id: int, seed: int = 0, start_step: int = 0, before: Sequence = ()
+    ) -> Plan:
+        """The policy's trajectory and `futures` more samples of it from `start` ([4, 3]), with
+        the time left after `start_step` real steps."""
+        start = np.asarray(start, dtype=np.uint8)
+        im = self.imaginer.rollout(
+            start, self.greedy(before), n=1 + self.futures, max_steps=self.max_steps - start_step, seed=seed
         )
-        n = int(im.lengths[0])
-        self._plans += 1
-        self.plan = Plan(
-            plan_id=self._plans,
-            manual_version=self.manual_version,
-            actions=im.actions[0, 1:n].tolist(),
-            observations=im.observations[0, :n].tolist(),
-            rewards=im.rewards[0, 1:n].tolist(),
-            dones=im.dones[0, 1:n].tolist(),
-            confidence=im.confidence()[0, 1:n].round(4).tolist(),
-            imagined_return=float(im.returns[0]),
+        return plan_from(im, plan_id, start_step)
+
+    def death_risk(self, history: Sequence, horizon: int, samples: int, seed: int = 0) -> float:
+        """The share of `samples` imagined futures of the policy, from the last real observation,
+        that die within `horizon` steps."""
+        im = self.imaginer.rollout(
+            np.asarray(history[-1], dtype=np.uint8), self.greedy(history[:-1]), n=samples, max_steps=horizon, seed=seed
         )
-        return self.plan
+        return float((im.rewards < 0).any(1).mean())
 
     # ---------------------------------------------------------------- feedback
-    def set_manual(self, descriptions: Sequence[str]) -> int:
-        """Language feedback: a new manual for the world model and the policy."""
-        if not isinstance(descriptions, (list, tuple)):
-            raise FeedbackError("a manual is a list of 3 descriptions")
-        self._set_batches(list(descriptions))  # raises before anything changes
+    def set_manual(self, descriptions: Sequence[str]) -> None:
+        """Language feedback: the policy reads the new manual."""
+        self._policy_manual = self._encode(descriptions)  # raises before anything changes
         self.manual = list(descriptions)
-        self.manual_version += 1
-        return self.manual_version
 
-    def correct(self, corrections: Sequence[Correction], updates: int = 30) -> int:
-        """Action corrections for states of the current plan: the policy is fine-tuned on every
-        correction received so far. Returns how many labelled states it now has."""
-        if self.plan is None:
-            raise FeedbackError("there is no plan to correct yet")
-        steps = len(self.plan.actions)
+    def check_corrections(self, plan: Plan, corrections: Sequence[Correction]) -> None:
+        steps = len(plan.actions)
         for c in corrections:
             if not isinstance(c.step, int) or not 1 <= c.step <= steps:
                 raise FeedbackError(f"step {c.step} is not in the plan (steps 1..{steps})")
             if not isinstance(c.action, int) or not 0 <= c.action < NUM_ACTIONS:
                 raise FeedbackError(f"action {c.action} is not in 0..{NUM_ACTIONS - 1}")
-        obs = np.asarray(self.plan.observations, dtype=np.uint8)[None]
-        new = [(stack_history(obs[:, : c.step])[0], c.action) for c in corrections]
-        self.labelled.extend(new)
-        self._fit(self.labelled, updates)
+
+    def correct(self, plan: Plan, corrections: Sequence[Correction], updates: int = 30) -> int:
+        """The right action for states of a plan: the policy is fine-tuned on everything it has
+        been taught in this game. Returns how many labelled states it now has."""
+        self.check_corrections(plan, corrections)
+        obs = np.asarray(plan.observations, dtype=np.uint8)[None]
+        self.labelled.add(
+            np.stack([stack_history(obs[:, : c.step])[0] for c in corrections]),
+            np.array([c.action for c in corrections]),
+        )
+        self._fit(updates)
+        return len(self.labelled)
+
+    def clone(self, demonstrations: Sequence[dict], updates: int) -> int:
+        """Filtered behaviour cloning: the reviewer's plans (observations o_0..o_n, actions)."""
+        hist, labels = [], []
+        for i, d in enumerate(demonstrations):
+            obs = np.asarray(d["observations"], dtype=np.uint8)
+            actions = list(d["actions"])
+            if len(obs) != len(actions) + 1:
+                raise FeedbackError(
+                    f"demonstration {i}: {len(obs)} observations need {len(obs) - 1} actions, got {len(actions)}"
+                )
+            hist += [stack_history(obs[None, : t + 1])[0] for t in range(len(actions))]
+            labels += actions
+        self.labelled.add(np.stack(hist), np.asarray(labels))
+        self._fit(updates)
         return len(self.labelled)
 
     def imitate(
-        self, labeller: Callable[[np.ndarray, int], np.ndarray], budget: Budget | None = None, seed: int = 0
+        self,
+        label_round: RoundLabeller,
+        starts: np.ndarray,
+        budget: Budget,
+        seed: int = 0,
+        should_stop: Callable[[], bool] = lambda: False,
+        on_round: Callable[[int, float, int], None] | None = None,
     ) -> list[float]:
-        """Online imitation in the world model from this episode's first observation (or `starts`),
-        with a labeller(observations [n, 4, 3], t) -> actions. Returns the mean loss of each round."""
-        return online_imitation_with(
+        """Online imitation through the imaginer from `starts`; labels come from label_round."""
+        return online_imitation(
             self.policy,
-            self.world,
-            self._world_manual,
-            self._policy_manual,
-            labeller,
-            self.first_obs if self.starts is None else self.starts,
-            budget or Budget(),
+            self.imaginer,
+            lambda: self._policy_manual,
+            label_round,
+            starts,
+            budget,
             seed,
             self.max_steps,
+            self.labelled,
+            should_stop,
+            on_round,
         )
 
-    def _fit(self, labelled: list[tuple[np.ndarray, int]], updates: int) -> None:
-        fit_labels(
-            self.policy,
-            self._policy_manual,
-            np.stack([h for h, _ in labelled]),
-            np.array([a for _, a in labelled]),
-            updates,
-            self.lr,
-        )
+    def _fit(self, updates: int) -> None:
+        h, y = self.labelled.arrays()
+        fit_labels(self.policy, self._policy_manual, h, y, updates, self.lr)
 
     def snapshot(self) -> dict:
-        """Everything a rejected feedback must leave unchanged (for tests and the ledger)."""
+        """Everything a rejected feedback must leave unchanged (for tests)."""
         return {
             "manual": list(self.manual),
-            "manual_version": self.manual_version,
-            "plan": None if self.plan is None else self.plan.to_json(),
             "policy": copy.deepcopy(self.policy.state_dict()),
             "labelled": len(self.labelled),
         }
+
+
+__all__ = ["Budget", "Correction", "FeedbackError", "Plan", "PlanReviewAgent", "plan_from", "start_observations_like"]

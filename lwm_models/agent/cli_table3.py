@@ -17,8 +17,7 @@ from ..world.checkpoint import load_checkpoint
 from ..world.frozen_text import FrozenTextEncoder
 from ..world.shipped import SHIPPED, SHIPPED_ORACLE, SHIPPED_POLICY
 from .learning import Budget
-from .policy import EmmaPolicy
-from .review import load_policy
+from .policy import EmmaPolicy, load_policy
 from .table3 import run_game, summarize
 
 PAPER = {  # real return, from the paper (shared/docs/messenger-wm.md §4)

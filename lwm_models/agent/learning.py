@@ -10,7 +10,7 @@ before evaluation.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import torch
@@ -21,7 +21,7 @@ from ..messenger.constants import STARTS
 from ..messenger.engine import BatchedMessenger
 from ..messenger.spec import GameSpec
 from ..world.base import ManualBatch, WorldModel
-from ..world.imagine import imagine
+from ..world.imagine import Imagination
 from .expert import expert_actions, role_ids
 from .policy import HISTORY, EmmaPolicy, act, stack_history
 
@@ -178,6 +178,21 @@ def start_observations(game: GameSpec, seed: int = 0) -> np.ndarray:
     return engine.compact_observation()
 
 
+def imagined_states(im: Imagination, max_steps: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Every state with a next action in imagined trajectories, step by step: histories
+    [m, 3, 4, 3], observations [m, 4, 3], their step index (0 = the start) and trajectory."""
+    hist, obs, steps, traj = [], [], [], []
+    for t in range(1, max_steps + 1):
+        alive = np.flatnonzero(im.lengths > t)  # trajectories still running at step t-1
+        if len(alive) == 0:
+            break
+        hist.append(stack_history(im.observations[alive, :t]))
+        obs.append(im.observations[alive, t - 1])
+        steps.append(np.full(len(alive), t - 1))
+        traj.append(alive)
+    return np.concatenate(hist), np.concatenate(obs), np.concatenate(steps), np.concatenate(traj)
+
+
 def labelled_states(
     observations: np.ndarray,
     lengths: np.ndarray,
@@ -198,6 +213,91 @@ def labelled_states(
     return np.concatenate(hist), np.concatenate(labels).astype(np.int64)
 
 
+RoundLabeller = Callable[[Imagination, int], tuple[np.ndarray, np.ndarray]]
+"""label_round(imagined round, round number) -> (histories [m, 3, 4, 3], labels [m]) of the states
+the reviewer labelled (all of them for the simulated human; the ones a person chose)."""
+
+
+def expert_rounds(labeller: Callable[[np.ndarray, int], np.ndarray], max_steps: int = 32) -> RoundLabeller:
+    """The simulated human labelling every state of a round, in process."""
+    return lambda im, _round: labelled_states(im.observations, im.lengths, max_steps, labeller)
+
+
+@dataclass
+class LabelledSet:
+    """The (history, expert action) pairs a policy has been taught in one game (DAgger aggregates)."""
+
+    history: list[np.ndarray] = field(default_factory=list)
+    labels: list[np.ndarray] = field(default_factory=list)
+
+    def add(self, history: np.ndarray, labels: np.ndarray) -> None:
+        if len(labels):
+            self.history.append(np.asarray(history, dtype=np.uint8))
+            self.labels.append(np.asarray(labels, dtype=np.int64))
+
+    def __len__(self) -> int:
+        return int(sum(len(y) for y in self.labels))
+
+    def arrays(self) -> tuple[np.ndarray, np.ndarray]:
+        return np.concatenate(self.history), np.concatenate(self.labels)
+
+
+def online_imitation(
+    policy: EmmaPolicy,
+    imaginer,
+    policy_manual: ManualBatch | Callable[[], ManualBatch],
+    label_round: RoundLabeller,
+    first_obs: np.ndarray,
+    budget: Budget,
+    seed: int = 0,
+    max_steps: int = 32,
+    labelled: LabelledSet | None = None,
+    should_stop: Callable[[], bool] = lambda: False,
+    on_round: Callable[[int, float, int], None] | None = None,
+) -> list[float]:
+    """Online imitation inside the world model, DAgger style: each round the learner imagines
+    `budget.episodes` trajectories (sampling) through `imaginer` (a ServiceImaginer or
+    LocalImaginer) from starts drawn from first_obs ([4, 3] or [k, 4, 3]), the reviewer labels the
+    round's states (label_round), and the policy takes `budget.grad_steps` minibatch steps on every
+    state labelled so far (`labelled`, which the caller may keep across feedback). Returns the mean
+    loss of each round. policy_manual may be a callable, read each round (a new manual mid-way).
+    """
+    starts = np.asarray(first_obs, dtype=np.uint8).reshape(-1, 4, 3)
+    rng = np.random.default_rng(seed)
+    gen = torch.Generator().manual_seed(seed)
+    opt = torch.optim.Adam(policy.parameters(), lr=budget.lr)
+    labelled = labelled if labelled is not None else LabelledSet()
+    losses = []
+    for u in range(budget.iterations):
+        if should_stop():
+            break
+        manual = policy_manual() if callable(policy_manual) else policy_manual
+        with torch.no_grad():
+            id_values = policy.id_values(manual).expand(budget.episodes, -1, -1)
+
+        def learner(obs: np.ndarray, idx: np.ndarray, t: int, id_values=id_values) -> np.ndarray:
+            return act(policy, stack_history(obs), id_values[: len(idx)], sample=True, generator=gen)
+
+        im = imaginer.rollout(
+            starts[rng.integers(len(starts), size=budget.episodes)],
+            learner,
+            n=budget.episodes,
+            max_steps=max_steps,
+            seed=seed * 10_000 + u,
+        )
+        labelled.add(*label_round(im, u + 1))
+        if len(labelled) == 0:
+            continue
+        h, y = labelled.arrays()
+        round_losses = fit_labels(
+            policy, manual, h, y, budget.grad_steps, budget.lr, budget.batch, seed * 10_000 + u, opt
+        )
+        losses.append(float(np.mean(round_losses)))
+        if on_round is not None:
+            on_round(u + 1, losses[-1], len(labelled))
+    return losses
+
+
 def online_imitation_with(
     policy: EmmaPolicy,
     world: WorldModel,
@@ -209,49 +309,17 @@ def online_imitation_with(
     seed: int = 0,
     max_steps: int = 32,
 ) -> list[float]:
-    """Online imitation inside the world model (see the module docstring), DAgger style: each
-    round the learner imagines `budget.episodes` trajectories (sampling) from starts drawn from
-    first_obs ([4, 3] or [k, 4, 3]), the labeller labels every imagined state, and the policy takes
-    `budget.grad_steps` minibatch steps on every state labelled so far. Returns the mean loss of
-    each round.
+    """Online imitation in a world model of this process, labelled by `labeller`
+    (observations [n, 4, 3], t) -> actions (the simulated human): Table 3's setting."""
+    from .imaginer import LocalImaginer
 
-    world_manual is what the world model reads (the manual the human gave), policy_manual what the
-    policy reads; labeller(observations [n, 4, 3], t) gives the expert's actions.
-    """
-    starts = np.asarray(first_obs, dtype=np.uint8).reshape(-1, 4, 3)
-    rng = np.random.default_rng(seed)
-    gen = torch.Generator().manual_seed(seed)
-    opt = torch.optim.Adam(policy.parameters(), lr=budget.lr)
-    hist, labels, losses = [], [], []
-    for u in range(budget.iterations):
-        with torch.no_grad():
-            id_values = policy.id_values(policy_manual).expand(budget.episodes, -1, -1)
-
-        def learner(obs: np.ndarray, idx: np.ndarray, t: int, id_values=id_values) -> np.ndarray:
-            return act(policy, stack_history(obs), id_values[: len(idx)], sample=True, generator=gen)
-
-        im = imagine(
-            world,
-            world_manual,
-            starts[rng.integers(len(starts), size=budget.episodes)],
-            n=budget.episodes,
-            policy=learner,
-            max_steps=max_steps,
-            seed=seed * 10_000 + u,
-        )
-        h, y = labelled_states(im.observations, im.lengths, max_steps, labeller)
-        hist.append(h)
-        labels.append(y)
-        round_losses = fit_labels(
-            policy,
-            policy_manual,
-            np.concatenate(hist),
-            np.concatenate(labels),
-            budget.grad_steps,
-            budget.lr,
-            budget.batch,
-            seed * 10_000 + u,
-            opt,
-        )
-        losses.append(float(np.mean(round_losses)))
-    return losses
+    return online_imitation(
+        policy,
+        LocalImaginer(world, world_manual),
+        policy_manual,
+        expert_rounds(labeller, max_steps),
+        first_obs,
+        budget,
+        seed,
+        max_steps,
+    )

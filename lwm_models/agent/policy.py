@@ -9,13 +9,17 @@ training and takes the argmax in evaluation.
 
 from __future__ import annotations
 
+import json
 import math
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 import torch
+from safetensors.torch import load_file, save_file
 from torch import nn
 
+from ..errors import LwmError
 from ..messenger.constants import GRID, NUM_ACTIONS, NUM_IDS
 from ..world.base import ManualBatch
 from ..world.description_encoder import AttentionPool
@@ -133,3 +137,25 @@ def act(
     if sample:
         return torch.multinomial(torch.softmax(logits, -1), 1, generator=generator).squeeze(1).numpy()
     return logits.argmax(-1).numpy()
+
+
+def save_policy(policy: EmmaPolicy, directory: str | Path, meta: dict | None = None) -> None:
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    save_file({k: v.contiguous() for k, v in policy.state_dict().items()}, str(directory / "policy.safetensors"))
+    (directory / "config.json").write_text(
+        json.dumps(
+            {"format": "lwm-emma-policy", "version": 1, "config": policy.config.__dict__, **(meta or {})}, indent=2
+        )
+    )
+
+
+def load_policy(directory: str | Path) -> EmmaPolicy:
+    directory = Path(directory)
+    try:
+        config = json.loads((directory / "config.json").read_text())
+        policy = EmmaPolicy(PolicyConfig(**config["config"]))
+        policy.load_state_dict({k: v.float() for k, v in load_file(str(directory / "policy.safetensors")).items()})
+    except (OSError, KeyError, ValueError, RuntimeError) as exc:
+        raise LwmError(f"cannot load a policy from {directory}: {exc}") from None
+    return policy.eval()

@@ -1,164 +1,590 @@
-"""The review loop, ROS-free: the planner node feeds it messages and executes what it approves.
+"""The review loop, ROS-free: what the planner node does, as a state machine with one worker.
 
-start() makes the first plan for a game; feedback() takes a review message and answers with the
-next plan, or with the plan to execute when approved; report() compares the real execution with
-the plan. Every plan, feedback, manual version and report goes to the ledger as it happens.
+A review is one real episode. It opens when the episode's first state and the simulator's manual
+for that game are both known, and goes through these phases:
+
+    planning  -> reviewing -> (feedback) -> planning ... -> executing -> done
+                    |  imitate: labelling rounds (label requests out, labels in)
+                    |  abort: done, nothing executed
+    executing -> (the world model, from the real state, gives death a share the plan did not
+                  show) -> planning from the real state -> reviewing -> executing (resumed)
+
+Events arrive from any thread (the node's callbacks): `on_status` (the simulator's manual and its
+version), `on_state` (the real game), `on_feedback`, `on_labels`. They validate at once, raising
+FeedbackError for input that does not fit (the node reports it; nothing changes), and hand the
+slow work (imagining through the simulator, learning, acting in the real game) to one worker
+thread, in order. The loop talks to the outside only through `Ports` and the imaginer, so the
+same code runs under ROS and in process.
+
+Every manual version, plan, feedback, label batch, saved policy and report goes to the ledger as
+it happens; a planner restarted mid-review rebuilds the review from it (`_resume`).
 """
 
 from __future__ import annotations
 
+import queue
+import re
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from safetensors.numpy import load_file as load_arrays
+from safetensors.numpy import save_file as save_arrays
 from safetensors.torch import load_file, save_file
 
 from ..errors import LwmError
 from ..ledger import Ledger
-from .agent import Correction, FeedbackError, Plan, PlanReviewAgent
+from .agent import Correction, FeedbackError, Plan, PlanReviewAgent, start_observations_like
+from .imaginer import Unavailable
+from .learning import Budget, LabelledSet, imagined_states
 from .policy import EmmaPolicy
 
 
-class ReviewSession:
+@dataclass
+class ReviewConfig:
+    """How the planner reviews. Defaults reproduce Table 3's online-imitation recipe."""
+
+    futures: int = 8  # sampled futures of the policy shown with each plan
+    max_steps: int = 32  # the game's time limit
+    correction_updates: int = 30  # minibatch steps after corrections
+    budget: Budget = field(default_factory=Budget)  # online imitation: rounds x episodes, steps per round
+    clone_updates: int = 400  # filtered BC: steps on the reviewer's demonstrations (Table 3: 40 x 10)
+    label_timeout: float = 120.0  # seconds to wait for a round's labels; imitation ends without them
+    risk_threshold: float = 0.5  # execution stops when this share of imagined futures die ...
+    risk_horizon: int = 3  # ... within this many steps of the real state, and the plan did not show it
+    risk_samples: int = 8
+    max_rereviews: int = 2  # reviews asked again during one execution
+    env_retry_for: float = 60.0  # seconds to wait for the environment's services
+
+
+@dataclass
+class Ports:
+    """The loop's way out: publishers and the real game's services (raise Unavailable when down)."""
+
+    publish_plan: Callable[[dict], None]
+    publish_label_request: Callable[[dict], None]
+    publish_report: Callable[[dict], None]
+    env_reset: Callable[[dict], dict]
+    env_step: Callable[[dict], dict]
+    log: Callable[[str], None] = print
+
+
+@dataclass
+class Execution:
+    """The real episode as the approved policy plays it (kept while a review is asked again)."""
+
+    seed: int
+    observations: list = field(default_factory=list)
+    actions: list = field(default_factory=list)
+    rewards: list = field(default_factory=list)
+    plans: list = field(default_factory=list)
+    planned: list = field(default_factory=list)  # the first approved plan's observations
+    risk_steps: list = field(default_factory=list)
+    reviews_asked: int = 0
+    outcome: str = "running"
+
+
+@dataclass
+class Review:
+    review_id: str
+    seed: int
+    game: str
+    first_obs: np.ndarray
+    agent: PlanReviewAgent
+    phase: str = "planning"
+    plan: Plan | None = None
+    plans: int = 0
+    revisions: int = 0
+    requests: int = 0
+    answered: set = field(default_factory=set)  # (plan_id, decision) taken
+    request: dict | None = None  # the label request waiting for labels
+    labels: tuple | None = None
+    labels_in: threading.Event = field(default_factory=threading.Event)
+    execution: Execution | None = None
+    learned: dict = field(default_factory=lambda: {"corrections": 0, "imitation_rounds": 0, "demonstrations": 0})
+
+
+def game_of(episode_id: str) -> str:
+    return episode_id.rsplit(":", 1)[0]
+
+
+class ReviewLoop:
     def __init__(
-        self, agent: PlanReviewAgent, review_id: str, ledger: Ledger | None = None, correction_updates: int = 30
+        self,
+        make_policy: Callable[[], EmmaPolicy],
+        encoder,
+        imaginer,
+        ports: Ports,
+        ledger: Ledger,
+        config: ReviewConfig | None = None,
+        policy_dir: str | Path | None = None,
     ) -> None:
-        self.agent = agent
-        self.review_id = review_id
+        self.make_policy = make_policy
+        self.encoder = encoder
+        self.imaginer = imaginer
+        self.ports = ports
         self.ledger = ledger
-        self.revisions = 0
-        self.correction_updates = correction_updates
-        self._seed = 0
-        self.answered: set[tuple[int, str]] = set()  # (plan_id, decision) already in the ledger
+        self.config = config or ReviewConfig()
+        self.policy_dir = Path(policy_dir) if policy_dir else ledger.path.parent / "policies"
+        self.lock = threading.RLock()
+        self.manual: list[str] | None = None
+        self.manual_version = 0
+        self.manual_game = ""
+        self.manual_source = ""
+        self.pending_state: dict | None = None
+        self.review: Review | None = None
+        self.agents: dict[str, PlanReviewAgent] = {}  # what was learned, per game
+        self.jobs: queue.Queue = queue.Queue()
+        self.closing = threading.Event()
+        self.worker = threading.Thread(target=self._work, name="review-worker", daemon=True)
+        self.worker.start()
 
-    def _log(self, kind: str, payload: dict) -> None:
-        if self.ledger is not None:
-            self.ledger.record(self.review_id, kind, payload)
+    # ================================================================== events
+    def on_status(self, status: dict) -> None:
+        """The simulator's manual: a new version re-plans the review under it."""
+        if "manual" not in status:
+            return
+        with self.lock:
+            if status["manual_version"] == self.manual_version and status["manual"] == self.manual:
+                return
+            self.manual, self.manual_version = list(status["manual"]), int(status["manual_version"])
+            self.manual_game = status.get("game", "")
+            self.manual_source = status.get("manual_source", "")
+            r = self.review
+            if r is not None and r.phase != "done" and self._manual_fits(r.game):
+                r.agent.set_manual(self.manual)
+                self._record_manual(r)
+                if r.phase == "reviewing":
+                    r.phase = "planning"
+                    r.revisions += 1
+                    self._submit(lambda: self._plan(r, "manual"))
+            self._maybe_start()
 
-    @classmethod
-    def resume(cls, agent: PlanReviewAgent, review_id: str, ledger: Ledger, correction_updates: int = 30):
-        """Rebuild a review from its ledger after a restart: manuals and corrections are replayed in
-        order (the policy is fine-tuned again, deterministically), the last plan is restored.
-        Returns (session, last plan message or None, whether an approved plan still has to run)."""
-        session = cls(agent, review_id, None, correction_updates)
-        last_plan, approved, seen = None, None, set()
-        for record in ledger.history(review_id):
-            p = record["payload"]
-            if record["kind"] == "manual" and p.get("source") != "env":
-                agent.set_manual(p["descriptions"])
-            elif record["kind"] == "plan":
-                last_plan = p
-                agent.plan = Plan(**{k: p[k] for k in Plan.__dataclass_fields__})
-                agent._plans = p["plan_id"]
-                session._seed = p["plan_id"]
-                approved = None
-            elif record["kind"] == "feedback":
-                seen.add((p["plan_id"], p["decision"]))
-                if p["decision"] == "corrections":
-                    agent.correct([Correction(c["step"], c["action"]) for c in p["corrections"]], correction_updates)
-                    agent.plan = Plan(**{k: last_plan[k] for k in Plan.__dataclass_fields__})
-                elif p["decision"] == "approve":
-                    approved = last_plan
-                if p["decision"] != "approve":
-                    session.revisions += 1
-            elif record["kind"] == "report":
-                approved = None
-        session.ledger = ledger
-        session.answered = seen
-        return session, last_plan, approved
+    def on_state(self, state: dict) -> None:
+        """The real game: an episode's first state (t = 0) opens its review."""
+        if state["t"] != 0:
+            return
+        with self.lock:
+            r = self.review
+            if r is not None and (r.review_id == state["episode_id"] or r.phase == "executing"):
+                return
+            self.pending_state = state
+            self._maybe_start()
 
-    def plan_message(self, plan: Plan) -> dict:
-        return {"review_id": self.review_id, "manual": list(self.agent.manual), **plan.to_json()}
+    def on_feedback(self, msg: dict) -> None:
+        with self.lock:
+            r = self.review
+            if r is None or msg["review_id"] != r.review_id:
+                current = None if r is None else r.review_id
+                raise FeedbackError(f"feedback for review {msg['review_id']!r}; the open review is {current!r}")
+            decision = msg["decision"]
+            if (msg["plan_id"], decision) in r.answered:
+                return  # already taken (delivered again after a restart)
+            if r.phase != "reviewing" or r.plan is None or msg["plan_id"] != r.plan.plan_id:
+                raise FeedbackError(
+                    f"plan {msg['plan_id']} is not under review (plan {r.plan and r.plan.plan_id}, {r.phase})"
+                )
+            if decision == "corrections":
+                r.agent.check_corrections(r.plan, [Correction(c["step"], c["action"]) for c in msg["corrections"]])
+            elif decision == "demonstrations":
+                for i, d in enumerate(msg["demonstrations"]):
+                    if len(d["observations"]) != len(d["actions"]) + 1:
+                        raise FeedbackError(f"demonstration {i}: give one action fewer than observations")
+            record = self.ledger.record(r.review_id, "feedback", msg)
+            r.answered.add((msg["plan_id"], decision))
+            r.phase = "executing" if decision == "approve" else "done" if decision == "abort" else "planning"
+            self._submit(lambda: self._take(r, msg, record))
 
-    def start(self) -> dict:
-        self._log(
-            "manual", {"manual_version": self.agent.manual_version, "descriptions": self.agent.manual, "source": "env"}
-        )
-        return self._new_plan()
+    def on_labels(self, msg: dict) -> None:
+        with self.lock:
+            r = self.review
+            if r is None or msg["review_id"] != r.review_id:
+                raise FeedbackError(f"labels for review {msg['review_id']!r}, which is not open")
+            req = r.request
+            if req is None or msg["request_id"] != req["request_id"]:
+                if msg["request_id"] <= r.requests:
+                    return  # answered or expired earlier (delivered again after a restart)
+                raise FeedbackError(f"no label request {msg['request_id']} (the last is {r.requests})")
+            states, actions = msg["states"], msg["actions"]
+            if len(states) != len(actions):
+                raise FeedbackError(f"{len(states)} states but {len(actions)} actions: give one action per state")
+            shown = len(req["observations"])
+            bad = [s for s in states if s >= shown]
+            if bad:
+                raise FeedbackError(f"state {bad[0]} was never shown (request {req['request_id']} has {shown} states)")
+            if len(set(states)) != len(states):
+                raise FeedbackError("a state is labelled twice")
+            self.ledger.record(r.review_id, "labels", {"request_id": req["request_id"], "labels": len(states)})
+            r.labels = (np.asarray(states, dtype=np.int64), np.asarray(actions, dtype=np.int64))
+            r.request = None
+            r.labels_in.set()
 
-    def _new_plan(self) -> dict:
-        plan = self.agent.make_plan(seed=self._seed)
-        self._seed += 1
-        message = self.plan_message(plan)
-        self._log("plan", message)
-        return message
+    def close(self) -> None:
+        self.closing.set()
+        with self.lock:
+            if self.review is not None:
+                self.review.labels_in.set()
+        self.jobs.put(None)
+        self.worker.join(timeout=5)
 
-    def feedback(self, message: dict) -> tuple[str, dict]:
-        """('plan', next plan) or ('execute', approved plan). Raises FeedbackError (state unchanged)
-        for feedback that does not fit the current review."""
-        plan = self.agent.plan
-        if message["review_id"] != self.review_id:
-            raise FeedbackError(f"feedback for review {message['review_id']!r}, this is {self.review_id!r}")
-        if plan is None or message["plan_id"] != plan.plan_id:
-            raise FeedbackError(
-                f"feedback for plan {message['plan_id']}, the current plan is {None if plan is None else plan.plan_id}"
+    # ================================================================== starting
+    def _manual_fits(self, game: str) -> bool:
+        return not self.manual_game or self.manual_game == game
+
+    def _maybe_start(self) -> None:
+        s = self.pending_state
+        if s is None or self.manual is None or not self._manual_fits(game_of(s["episode_id"])):
+            return
+        self.pending_state = None
+        review_id = s["episode_id"]
+        seed = int(s.get("seed", review_id.rsplit(":", 1)[-1]))
+        game = game_of(review_id)
+        agent = self.agents.get(game)
+        if agent is None:
+            agent = PlanReviewAgent(
+                self.make_policy(),
+                self.encoder,
+                self.imaginer,
+                list(self.manual),
+                self.config.max_steps,
+                futures=self.config.futures,
             )
-        decision = message["decision"]
-        if decision == "manual":
-            version = self.agent.set_manual(message["manual"])
-            self._log("feedback", message)
-            self._log("manual", {"manual_version": version, "descriptions": message["manual"], "source": "human"})
-        elif decision == "corrections":
-            self.agent.correct(
-                [Correction(c["step"], c["action"]) for c in message["corrections"]], self.correction_updates
-            )
-            self._log("feedback", message)
+            self.agents[game] = agent
         else:
-            self._log("feedback", message)
-        # Only feedback the agent took counts as answered: a rejected one may be sent again, fixed.
-        self.answered.add((message["plan_id"], decision))
-        if decision == "approve":
-            return "execute", self.plan_message(plan)
-        self.revisions += 1
-        return "plan", self._new_plan()
+            agent.set_manual(self.manual)
+        r = Review(review_id, seed, game, np.asarray(s["observation"], dtype=np.uint8), agent)
+        self.review = r
+        history = self.ledger.history(review_id)
+        if history:
+            self._resume(r, history)
+        else:
+            self._record_manual(r)
+            self._submit(lambda: self._plan(r, "start"))
 
-    def report(self, plan: dict, real_observations: list, real_return: float, outcome: str) -> dict:
-        """Compare the executed trajectory with the plan: real vs imagined return, first step where
-        the observations differ, and the mean distance (cells) between planned and real avatar."""
-        planned = np.asarray(plan["observations"])
-        real = np.asarray(real_observations)
+    def _record_manual(self, r: Review) -> None:
+        self.ledger.record(
+            r.review_id,
+            "manual",
+            {"manual_version": self.manual_version, "descriptions": self.manual, "source": self.manual_source},
+        )
+
+    # ================================================================== the worker
+    def _submit(self, job: Callable[[], None]) -> None:
+        self.jobs.put(job)
+
+    def _work(self) -> None:
+        while not self.closing.is_set():
+            job = self.jobs.get()
+            if job is None:
+                return
+            try:
+                job()
+            except Exception as exc:  # the loop must survive one failed job; the node reports it
+                self.ports.log(f"review job failed: {type(exc).__name__}: {exc}")
+                with self.lock:
+                    r = self.review
+                    if r is not None and r.phase in ("planning", "executing") and r.plan is not None:
+                        r.phase = "reviewing"  # the last plan stays open for feedback
+                        self.ports.publish_plan(self._plan_message(r, r.plan, "error"))
+
+    def _take(self, r: Review, msg: dict, record: int) -> None:
+        decision = msg["decision"]
+        a = r.agent
+        if decision == "approve":
+            self._execute(r)
+            return
+        if decision == "abort":
+            self._report(r, aborted=True)
+            return
+        r.revisions += 1
+        if decision == "corrections":
+            fixes = [Correction(c["step"], c["action"]) for c in msg["corrections"]]
+            a.correct(r.plan, fixes, self.config.correction_updates)
+            r.learned["corrections"] += len(fixes)
+            self._save_policy(r, record)
+        elif decision == "imitate":
+            budget = self.config.budget
+            if "rounds" in msg:
+                budget = Budget(**{**budget.__dict__, "iterations": int(msg["rounds"])})
+            self._imitate(r, budget)
+            self._save_policy(r, record)
+        elif decision == "demonstrations":
+            a.clone(msg["demonstrations"], self.config.clone_updates)
+            r.learned["demonstrations"] += len(msg["demonstrations"])
+            self._save_policy(r, record)
+        self._plan(r, {"reject": "reject", "imitate": "imitation"}.get(decision, decision))
+
+    # ------------------------------------------------------------------ plans
+    def _start_of(self, r: Review) -> tuple[np.ndarray, int, list]:
+        """Where the next plan starts: the episode's first state, or the real state of a paused
+        execution (with the observations before it)."""
+        ex = r.execution
+        if ex is not None and ex.outcome == "running" and ex.observations:
+            return np.asarray(ex.observations[-1], dtype=np.uint8), len(ex.actions), ex.observations[:-1]
+        return r.first_obs, 0, []
+
+    def _plan(self, r: Review, reason: str) -> None:
+        start, start_step, before = self._start_of(r)
+        for _ in range(3):  # a manual that changed while imagining makes the plan stale: imagine again
+            with self.lock:
+                r.plans += 1
+                plan_id = r.plans
+            plan = r.agent.make_plan(start, plan_id, r.seed * 1000 + plan_id, start_step, before)
+            with self.lock:
+                if plan.manual_version in (0, self.manual_version) or self.closing.is_set():
+                    break
+        with self.lock:
+            if self.review is not r:
+                return  # a newer review took over
+            r.plan = plan
+            r.phase = "reviewing"
+            message = self._plan_message(r, plan, reason)
+            self.ledger.record(r.review_id, "plan", message)
+        self.ports.publish_plan(message)
+        self.ports.log(
+            f"review {r.review_id}: plan {plan.plan_id} ({reason}, manual v{plan.manual_version}): imagined "
+            f"return {plan.imagined_return:+.2f}, futures die {plan.futures['death_share']:.0%}"
+        )
+
+    def _plan_message(self, r: Review, plan: Plan, reason: str) -> dict:
+        return {
+            "review_id": r.review_id,
+            "manual": list(r.agent.manual),
+            "reason": reason,
+            "learning": {**r.learned, "labelled": len(r.agent.labelled)},
+            **plan.to_json(),
+        }
+
+    # ------------------------------------------------------------------ online imitation
+    def _imitate(self, r: Review, budget: Budget) -> None:
+        start, start_step, _ = self._start_of(r)
+        starts = start_observations_like(r.first_obs)
+        if start_step:  # asked again mid-episode: half the rounds' episodes start from the real state
+            starts = np.concatenate([starts, np.repeat(start[None], len(starts), 0)])
+        stop = {"now": False}
+
+        def label_round(im, round_no: int):
+            hist, obs, steps, traj = imagined_states(im, self.config.max_steps)
+            with self.lock:
+                r.requests += 1
+                r.labels_in.clear()
+                r.labels = None
+                r.request = {
+                    "review_id": r.review_id,
+                    "request_id": r.requests,
+                    "round": round_no,
+                    "rounds": budget.iterations,
+                    "manual_version": im.manual_version,
+                    "observations": obs.tolist(),
+                    "steps": steps.tolist(),
+                    "trajectories": traj.tolist(),
+                    "timeout": self.config.label_timeout,
+                }
+                self.ledger.record(
+                    r.review_id,
+                    "label_request",
+                    {"request_id": r.requests, "round": round_no, "rounds": budget.iterations, "states": len(obs)},
+                )
+                request = r.request
+            self.ports.publish_label_request(request)
+            got = r.labels_in.wait(self.config.label_timeout)
+            with self.lock:
+                labels, r.labels, r.request = r.labels, None, None
+            if not got or labels is None:
+                stop["now"] = True
+                self.ports.log(f"review {r.review_id}: no labels for request {request['request_id']}; imitation ends")
+                return hist[:0], np.zeros(0, dtype=np.int64)
+            idx, actions = labels
+            r.learned["imitation_rounds"] += 1
+            return hist[idx], actions
+
+        r.agent.imitate(
+            label_round,
+            starts,
+            budget,
+            seed=r.seed * 1000 + r.plans,
+            should_stop=lambda: stop["now"] or self.closing.is_set() or self.review is not r,
+        )
+
+    # ------------------------------------------------------------------ execution, closed loop
+    def _env(self, call: Callable[[dict], dict], payload: dict) -> dict:
+        deadline = time.monotonic() + self.config.env_retry_for
+        while True:
+            try:
+                return call(payload)
+            except Unavailable:
+                if time.monotonic() > deadline or self.closing.is_set():
+                    raise
+                time.sleep(0.5)
+
+    def _replay(self, ex: Execution) -> dict:
+        """Bring the real game to where the execution was (a restarted environment, or a resumed
+        review): its randomness is a function of the seed and the actions, so replaying them
+        reproduces the episode."""
+        state = self._env(self.ports.env_reset, {"seed": ex.seed})
+        for a in ex.actions:
+            state = self._env(self.ports.env_step, {"action": int(a)})
+        if ex.observations and state["observation"] != ex.observations[-1]:
+            raise LwmError("the real game did not replay to the same state")
+        return state
+
+    def _execute(self, r: Review) -> None:
+        cfg = self.config
+        plan = r.plan
+        if r.execution is None:
+            r.execution = Execution(r.seed)
+        ex = r.execution
+        ex.plans.append(plan.plan_id)
+        if not ex.planned:
+            ex.planned = plan.observations
+        if not ex.observations:
+            state = self._env(self.ports.env_reset, {"seed": ex.seed})
+            ex.observations.append(state["observation"])
+        state = None
+        while len(ex.actions) < cfg.max_steps:
+            action = r.agent.act(ex.observations)
+            try:
+                state = self._env(self.ports.env_step, {"action": action})
+            except LwmError as exc:
+                if "reset first" not in str(exc):
+                    raise
+                self._replay(ex)  # the environment lost the episode (restarted): replay, then step
+                state = self._env(self.ports.env_step, {"action": action})
+            ex.actions.append(action)
+            ex.rewards.append(float(state["reward"]))
+            ex.observations.append(state["observation"])
+            if state["done"]:
+                ex.outcome = state["outcome"]
+                break
+            t = len(ex.actions)
+            k = t - plan.start_step  # this step in the plan
+            shown = any(x < 0 for x in plan.rewards[k : k + cfg.risk_horizon])
+            if shown or ex.reviews_asked >= cfg.max_rereviews:
+                continue
+            risk = r.agent.death_risk(ex.observations, cfg.risk_horizon, cfg.risk_samples, seed=r.seed * 100 + t)
+            if risk >= cfg.risk_threshold:
+                ex.risk_steps.append(t)
+                ex.reviews_asked += 1
+                self.ports.log(f"review {r.review_id}: step {t}: {risk:.0%} of imagined futures die; asking again")
+                with self.lock:
+                    r.phase = "planning"
+                self._plan(r, "divergence")
+                return  # an approval resumes this execution
+        if ex.outcome == "running" and state is not None:
+            ex.outcome = state.get("outcome", "time_limit")
+        self._report(r)
+
+    def _report(self, r: Review, aborted: bool = False) -> None:
+        ex = r.execution or Execution(r.seed)
+        plan = r.plan
+        planned = np.asarray(ex.planned or plan.observations)
+        real = np.asarray(ex.observations) if ex.observations else planned[:1]
         common = min(len(planned), len(real))
         differ = [t for t in range(common) if not np.array_equal(planned[t], real[t])]
         gaps = np.abs(planned[:common, 3, 1:].astype(int) - real[:common, 3, 1:].astype(int)).sum(-1)
-        message = {
-            "review_id": self.review_id,
-            "plan_id": plan["plan_id"],
-            "real_return": float(real_return),
-            "imagined_return": float(plan["imagined_return"]),
-            "steps": len(real) - 1,
-            "outcome": outcome,
-            "divergence": {"first_step": differ[0] if differ else None, "mean_cells": float(gaps.mean())},
-            "revisions": self.revisions,
+        report = {
+            "review_id": r.review_id,
+            "plan_id": plan.plan_id,
+            "real_return": float(sum(ex.rewards)),
+            "imagined_return": float(plan.imagined_return),
+            "steps": len(ex.actions),
+            "outcome": "aborted" if aborted else ex.outcome,
+            "divergence": {
+                "first_step": differ[0] if differ else None,
+                "mean_cells": float(gaps.mean()),
+                "risk_steps": ex.risk_steps,
+            },
+            "reviews_asked": ex.reviews_asked,
+            "revisions": r.revisions,
+            "plans": ex.plans,
+            "actions": ex.actions,
+            "observations": [list(map(list, o)) for o in real.tolist()] if ex.observations else [],
+            "planned_observations": planned.tolist(),
         }
-        self._log("report", message)
-        return message
-
-
-def save_policy(policy: EmmaPolicy, directory: str | Path, meta: dict | None = None) -> None:
-    import json
-
-    directory = Path(directory)
-    directory.mkdir(parents=True, exist_ok=True)
-    save_file({k: v.contiguous() for k, v in policy.state_dict().items()}, str(directory / "policy.safetensors"))
-    (directory / "config.json").write_text(
-        json.dumps(
-            {"format": "lwm-emma-policy", "version": 1, "config": policy.config.__dict__, **(meta or {})}, indent=2
+        with self.lock:
+            r.phase = "done"
+            self.ledger.record(r.review_id, "report", report)
+        self.ports.publish_report(report)
+        self.ports.log(
+            f"review {r.review_id}: {report['outcome']}, real return {report['real_return']:+.2f} "
+            f"(imagined {report['imagined_return']:+.2f}), reviews asked again: {ex.reviews_asked}"
         )
-    )
+        with self.lock:
+            self._maybe_start()
+
+    # ------------------------------------------------------------------ the policy on disk
+    def _policy_path(self, r: Review) -> Path:
+        return self.policy_dir / (re.sub(r"[^A-Za-z0-9_.-]", "_", r.review_id) + ".safetensors")
+
+    def _save_policy(self, r: Review, after: int) -> None:
+        """The policy and its labelled states, written atomically, so a restart resumes from them."""
+        path = self._policy_path(r)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_suffix(".tmp")
+        save_file({k: v.contiguous() for k, v in r.agent.policy.state_dict().items()}, str(tmp))
+        tmp.replace(path)
+        data = path.with_suffix(".labels")
+        if len(r.agent.labelled):
+            h, y = r.agent.labelled.arrays()
+            save_arrays({"history": h, "labels": y}, str(tmp))
+            tmp.replace(data)
+        self.ledger.record(
+            r.review_id, "policy", {"path": str(path), "after": after, "labelled": len(r.agent.labelled)}
+        )
+
+    # ------------------------------------------------------------------ resume
+    def _resume(self, r: Review, history: list[dict]) -> None:
+        """Rebuild a review from its ledger: the last saved policy, the last plan, what was
+        answered; then redo what was interrupted (learning without a newer plan, an approved plan
+        without a report: the episode is replayed from its seed)."""
+        last_plan, pending, saved, done = None, None, None, False
+        for rec in history:
+            p, kind = rec["payload"], rec["kind"]
+            if kind == "plan":
+                last_plan, pending = p, None
+                r.plans = max(r.plans, p["plan_id"])
+            elif kind == "feedback":
+                r.answered.add((p["plan_id"], p["decision"]))
+                pending = (rec["id"], p)
+                if p["decision"] not in ("approve", "abort"):
+                    r.revisions += 1
+            elif kind == "label_request":
+                r.requests = max(r.requests, p["request_id"])
+            elif kind == "policy":
+                saved = p
+            elif kind == "report":
+                done = True
+        if saved is not None and Path(saved["path"]).is_file():
+            r.agent.policy.load_state_dict(load_file(saved["path"]))
+            data = Path(saved["path"]).with_suffix(".labels")
+            r.agent.labelled = LabelledSet()
+            if data.is_file():
+                arrays = load_arrays(str(data))
+                r.agent.labelled.add(arrays["history"], arrays["labels"])
+        self.ports.log(f"review {r.review_id} resumed from the ledger at plan {last_plan and last_plan['plan_id']}")
+        if done:
+            r.phase = "done"
+            return
+        if last_plan is None:
+            self._submit(lambda: self._plan(r, "resume"))
+            return
+        r.plan = Plan(**{k: last_plan[k] for k in Plan.__dataclass_fields__ if k in last_plan})
+        if pending is None:
+            r.phase = "reviewing"
+            self.ports.publish_plan(last_plan)
+            return
+        record, msg = pending
+        if saved is not None and saved.get("after") == record:  # learned already; only the plan is missing
+            r.phase = "planning"
+            self._submit(lambda: self._plan(r, "resume"))
+            return
+        r.phase = "executing" if msg["decision"] == "approve" else "planning"
+        if msg["decision"] == "approve" and r.plan.start_step > 0:
+            r.plan.start_step = 0  # the paused execution is gone: the episode is played again from its start
+        self._submit(lambda: self._take(r, msg, record))
 
 
-def load_policy(directory: str | Path) -> EmmaPolicy:
-    import json
-
-    from .policy import PolicyConfig
-
-    directory = Path(directory)
-    try:
-        config = json.loads((directory / "config.json").read_text())
-        policy = EmmaPolicy(PolicyConfig(**config["config"]))
-        policy.load_state_dict({k: v.float() for k, v in load_file(str(directory / "policy.safetensors")).items()})
-    except (OSError, KeyError, ValueError, RuntimeError) as exc:
-        raise LwmError(f"cannot load a policy from {directory}: {exc}") from None
-    return policy.eval()
-
-
-__all__ = ["ReviewSession", "load_policy", "save_policy"]
+__all__ = ["Execution", "Ports", "Review", "ReviewConfig", "ReviewLoop"]

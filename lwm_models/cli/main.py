@@ -154,8 +154,7 @@ def _cmd_agent_pretrain(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from ..agent.learning import pretrain
-    from ..agent.policy import EmmaPolicy
-    from ..agent.review import save_policy
+    from ..agent.policy import EmmaPolicy, save_policy
     from ..data.dataset import TrajectoryDataset
     from ..world.frozen_text import FrozenTextEncoder
 

@@ -59,6 +59,7 @@ class GameSession:
     def state(self) -> dict:
         return {
             "episode_id": self.episode_id,
+            "seed": self.seed,
             "game": {"split": self.split, "index": self.index},
             "t": self.env.t,
             "observation": grid_to_compact(self.obs).tolist(),

@@ -45,7 +45,8 @@ class Imagination:
     rewards: np.ndarray  # [N, T + 1] float32
     dones: np.ndarray  # [N, T + 1] bool
     lengths: np.ndarray  # [N] observations per trajectory
-    token_probs: np.ndarray  # [N, T + 1, 14] float32
+    token_probs: np.ndarray  # [N, T + 1, 14] float32 ([N, T + 1, 1]: the step confidence, from a service)
+    manual_version: int = 0  # the simulator's manual version it read (0: a manual given directly)
 
     @property
     def returns(self) -> np.ndarray:
@@ -85,6 +86,149 @@ def _check_inputs(first_obs: np.ndarray, n: int) -> np.ndarray:
     return first
 
 
+@dataclass
+class _Sampler:
+    """Feeds tokens through the model (with or without the KV cache) and samples the next one."""
+
+    model: WorldModel
+    cond: object
+    cache: object
+    history: torch.Tensor | None
+    gen: torch.Generator
+    temperature: float
+
+    def run(self, new_tokens: torch.Tensor) -> torch.Tensor:
+        """Feed tokens; the last hidden state predicts the next token."""
+        if self.cache is not None:
+            return self.model.hidden_states(new_tokens, self.cond, self.cache)[:, -1]
+        self.history = torch.cat([self.history, new_tokens], dim=1)
+        return self.model.hidden_states(self.history, self.cond)[:, -1]
+
+    def sample(self, h: torch.Tensor, position: int) -> tuple[torch.Tensor, torch.Tensor]:
+        probs = torch.softmax(self.model.next_token_logits(h, position).float() / self.temperature, dim=-1)
+        token = torch.multinomial(probs, 1, generator=self.gen).squeeze(1)
+        return token, probs.gather(1, token[:, None]).squeeze(1)
+
+    def keep(self, idx: torch.Tensor) -> None:
+        self.cond = self.cond.index(idx)
+        if self.cache is not None:
+            self.cache.select(idx)
+        else:
+            self.history = self.history[idx]
+
+
+class Rollout:
+    """Step-wise imagination of n trajectories: the caller gives the actions of the running
+    trajectories one step at a time (a policy acting inside imagination), and the KV cache stays
+    here between steps. `imagine` is a loop over it; the simulator keeps one per session.
+
+    After `step`, the new observation of trajectory i is `observations[i, t]` for each i in the
+    returned indices (those that were running), with `rewards`, `dones` and `token_probs` alike.
+    """
+
+    def __init__(
+        self,
+        model: WorldModel,
+        manual: ManualBatch,
+        first_obs: np.ndarray,
+        n: int = 1,
+        max_steps: int = DEFAULT_MAX_STEPS,
+        temperature: float = 1.0,
+        seed: int | None = None,
+        use_cache: bool = True,
+        stop_on_done: bool = True,
+    ) -> None:
+        if max_steps < 1:
+            raise ValueError(f"max_steps must be >= 1, got {max_steps}")
+        if temperature <= 0:
+            raise ValueError("temperature must be > 0")
+        first = _check_inputs(first_obs, n)
+        model.eval()
+        cond = model.condition(manual)
+        batch_of_manual = (
+            next(t for t in (cond.id_table, cond.memory) if t is not None).shape[0]
+            if (cond.id_table is not None or cond.memory is not None)
+            else n
+        )
+        if batch_of_manual not in (1, n):
+            raise ShapeError(f"manual batch must be 1 or {n}, got {batch_of_manual}")
+        if batch_of_manual == 1 and n > 1:
+            cond = cond.index(torch.zeros(n, dtype=torch.long))
+        self.n, self.max_steps, self.stop_on_done = n, max_steps, stop_on_done
+        steps = max_steps + 1
+        self.observations = np.zeros((n, steps, NUM_CHANNELS, 3), dtype=np.uint8)
+        self.actions = np.zeros((n, steps), dtype=np.int64)
+        self.rewards = np.zeros((n, steps), dtype=np.float32)
+        self.dones = np.zeros((n, steps), dtype=bool)
+        self.token_probs = np.zeros((n, steps, OBS_TOKENS + 2), dtype=np.float32)
+        self.lengths = np.ones(n, dtype=np.int64)
+        self.observations[:, 0] = first
+        self.active = np.arange(n)
+        self.t = 0
+        first_block = np.zeros((n, BLOCK), dtype=np.int64)
+        first_block[:, 0] = DUMMY_ACTION
+        first_block[:, 1 : 1 + OBS_TOKENS] = obs_to_tokens(first)
+        first_block[:, -2] = FIRST_REWARD_LABEL
+        gen = torch.Generator().manual_seed(seed if seed is not None else int(torch.randint(2**31, ()).item()))
+        tokens = torch.from_numpy(first_block)
+        cache = model.new_cache(n) if use_cache else None
+        self._sampler = _Sampler(model, cond, cache, None if use_cache else tokens, gen, temperature)
+        if use_cache:
+            with torch.no_grad():
+                model.hidden_states(tokens, cond, cache)
+        self._pending: torch.Tensor | None = None  # the last block's done token, fed with the next action
+
+    @property
+    def finished(self) -> bool:
+        return len(self.active) == 0 or self.t >= self.max_steps
+
+    @torch.no_grad()
+    def step(self, actions: np.ndarray) -> np.ndarray:
+        """Advance every running trajectory by one action (`actions[k]` for `active[k]`); returns the
+        indices that stepped."""
+        if self.finished:
+            raise ValueError("the imagination has ended: every trajectory is done or at the time limit")
+        act = np.asarray(actions, dtype=np.int64).reshape(-1)
+        if act.shape != (len(self.active),) or ((act < 0) | (act >= NUM_ACTIONS)).any():
+            raise ValueError(
+                f"give {len(self.active)} actions in 0..{NUM_ACTIONS - 1}, got {np.asarray(actions).tolist()}"
+            )
+        s, active = self._sampler, self.active
+        self.t += 1
+        t = self.t
+        self.actions[active, t] = act
+        new = torch.from_numpy(act)[:, None]
+        if self._pending is not None:
+            new = torch.cat([self._pending[:, None], new], dim=1)
+        h = s.run(new)
+        block_tokens, probs = [], []
+        for k in range(OBS_TOKENS + 2):
+            token, p = s.sample(h, t * BLOCK + 1 + k)
+            block_tokens.append(token)
+            probs.append(p)
+            if k < OBS_TOKENS + 1:
+                h = s.run(token[:, None])
+        block = torch.stack(block_tokens, 1).numpy()
+        self.observations[active, t] = tokens_to_obs(block[:, :OBS_TOKENS])
+        self.rewards[active, t] = REWARD_VALUES[block[:, OBS_TOKENS]]
+        done = block[:, OBS_TOKENS + 1] == 1
+        self.dones[active, t] = done
+        self.token_probs[active, t] = torch.stack(probs, 1).numpy()
+        self.lengths[active] += 1
+        self._pending = torch.from_numpy(block[:, OBS_TOKENS + 1])
+        keep = ~done if self.stop_on_done else np.ones_like(done)
+        if not keep.all():
+            idx = torch.from_numpy(np.flatnonzero(keep))
+            self.active = active[keep]
+            self._pending = self._pending[idx]
+            if len(self.active):
+                s.keep(idx)
+        return active
+
+    def result(self) -> Imagination:
+        return Imagination(self.observations, self.actions, self.rewards, self.dones, self.lengths, self.token_probs)
+
+
 @torch.no_grad()
 def imagine(
     model: WorldModel,
@@ -112,7 +256,7 @@ def imagine(
         raise ValueError("give either an action sequence or a policy")
     if max_steps < 1:
         raise ValueError(f"max_steps must be >= 1, got {max_steps}")
-    first = _check_inputs(first_obs, n)
+    _check_inputs(first_obs, n)
     if actions is not None:
         actions = np.asarray(actions)
         if actions.ndim == 1:
@@ -121,97 +265,14 @@ def imagine(
             raise ShapeError(f"actions must be [{n}, >= {max_steps}], got {actions.shape}")
         if ((actions < 0) | (actions >= NUM_ACTIONS)).any():
             raise ValueError(f"actions must be in 0..{NUM_ACTIONS - 1}")
-    if temperature <= 0:
-        raise ValueError("temperature must be > 0")
-    gen = torch.Generator().manual_seed(seed if seed is not None else int(torch.randint(2**31, ()).item()))
-    model.eval()
-
-    cond = model.condition(manual)
-    batch_of_manual = (
-        next(t for t in (cond.id_table, cond.memory) if t is not None).shape[0]
-        if (cond.id_table is not None or cond.memory is not None)
-        else n
-    )
-    if batch_of_manual not in (1, n):
-        raise ShapeError(f"manual batch must be 1 or {n}, got {batch_of_manual}")
-    if batch_of_manual == 1 and n > 1:
-        cond = cond.index(torch.zeros(n, dtype=torch.long))
-
-    steps = max_steps + 1
-    obs_out = np.zeros((n, steps, NUM_CHANNELS, 3), dtype=np.uint8)
-    act_out = np.zeros((n, steps), dtype=np.int64)
-    rew_out = np.zeros((n, steps), dtype=np.float32)
-    done_out = np.zeros((n, steps), dtype=bool)
-    prob_out = np.zeros((n, steps, OBS_TOKENS + 2), dtype=np.float32)
-    lengths = np.ones(n, dtype=np.int64)
-    obs_out[:, 0] = first
-
-    first_block = np.zeros((n, BLOCK), dtype=np.int64)
-    first_block[:, 0] = DUMMY_ACTION
-    first_block[:, 1 : 1 + OBS_TOKENS] = obs_to_tokens(first)
-    first_block[:, -2] = FIRST_REWARD_LABEL
-    history = torch.from_numpy(first_block)  # all tokens so far (for the no-cache path)
-    active = np.arange(n)
-    cache = model.new_cache(n) if use_cache else None
-
-    def run(new_tokens: torch.Tensor) -> torch.Tensor:
-        """Feed tokens; the last hidden state predicts the next token."""
-        nonlocal history
-        if use_cache:
-            return model.hidden_states(new_tokens, cond_active, cache)[:, -1]
-        history = torch.cat([history, new_tokens], dim=1) if history.shape[1] else new_tokens
-        return model.hidden_states(history, cond_active)[:, -1]
-
-    def sample(h: torch.Tensor, position: int) -> tuple[torch.Tensor, torch.Tensor]:
-        probs = torch.softmax(model.next_token_logits(h, position).float() / temperature, dim=-1)
-        token = torch.multinomial(probs, 1, generator=gen).squeeze(1)
-        return token, probs.gather(1, token[:, None]).squeeze(1)
-
-    cond_active = cond
-    if use_cache:
-        model.hidden_states(history, cond_active, cache)
-    else:
-        history = torch.from_numpy(first_block)
-    pending = None  # the last block's done token, fed together with the next action
-    for t in range(1, steps):
+    rollout = Rollout(model, manual, first_obs, n, max_steps, temperature, seed, use_cache, stop_on_done)
+    while not rollout.finished:
+        active, t = rollout.active, rollout.t + 1
         if policy is not None:
-            act = np.asarray(policy(obs_out[active, :t], active, t), dtype=np.int64)
+            act = np.asarray(policy(rollout.observations[active, :t], active, t), dtype=np.int64)
             if act.shape != (len(active),) or ((act < 0) | (act >= NUM_ACTIONS)).any():
                 raise ValueError(f"the policy must return {len(active)} actions in 0..{NUM_ACTIONS - 1}")
         else:
-            act = actions[active, t - 1].astype(np.int64)
-        act_out[active, t] = act
-        base = t * BLOCK
-        new = torch.from_numpy(act)[:, None]
-        if pending is not None:
-            new = torch.cat([pending[:, None], new], dim=1)
-        h = run(new)
-        block_tokens = []
-        probs = []
-        for k in range(OBS_TOKENS + 2):
-            token, p = sample(h, base + 1 + k)
-            block_tokens.append(token)
-            probs.append(p)
-            if k < OBS_TOKENS + 1:
-                h = run(token[:, None])
-        block = torch.stack(block_tokens, 1).numpy()
-        obs_out[active, t] = tokens_to_obs(block[:, :OBS_TOKENS])
-        rew_out[active, t] = REWARD_VALUES[block[:, OBS_TOKENS]]
-        done = block[:, OBS_TOKENS + 1] == 1
-        done_out[active, t] = done
-        prob_out[active, t] = torch.stack(probs, 1).numpy()
-        lengths[active] += 1
-        pending = torch.from_numpy(block[:, OBS_TOKENS + 1])
-        keep = ~done if stop_on_done else np.ones_like(done)
-        if not keep.any():
-            break
-        if not keep.all():
-            idx = torch.from_numpy(np.flatnonzero(keep))
-            active = active[keep]
-            cond_active = cond_active.index(idx)
-            pending = pending[idx]
-            if use_cache:
-                cache.select(idx)
-            else:
-                history = history[idx]
-    return Imagination(obs_out, act_out, rew_out, done_out, lengths, prob_out)
+            act = actions[active, t - 1]
+        rollout.step(act)
+    return rollout.result()

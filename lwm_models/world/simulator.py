@@ -1,28 +1,89 @@
-"""The LWM simulator: a world model with a current manual, answering imagine requests.
+"""The LWM simulator: the one owner of the world model, the current manual and its version.
 
-This is the ROS-free engine behind the simulator node: it holds the manual (replaced by language
-feedback, each replacement a new version) and turns an imagine request into imagined trajectories.
+This is the ROS-free engine behind the simulator node (and anything else that serves
+`/lwm/imagine`). It answers imagine requests (msgs_json/imagine_request), by `op`:
+- `imagine` (the default): one-shot, batched; each trajectory replays its action sequence (or
+  random actions) from its start observation;
+- `open` / `step` / `close`: a step-wise imagination session, for a policy that acts inside
+  imagination from elsewhere (the planner). The session's KV cache stays here between steps, so a
+  step costs one block of tokens, not the whole prefix. A session reads the manual that was
+  current when it opened and says which version that was.
+
+Manuals: each replacement that changes the text is a new version; the state (manual, version,
+source, game) is written atomically to `state_path` when given, so a restarted simulator keeps
+counting from where it was instead of handing out version 1 again.
 """
 
 from __future__ import annotations
 
+import itertools
+import json
+import os
 import time
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from .. import messages
 from ..errors import LwmError
+from ..messenger.constants import AVATAR_NO_MESSAGE, AVATAR_WITH_MESSAGE, GRID
 from .checkpoint import load_checkpoint
 from .frozen_text import FrozenTextEncoder
-from .imagine import imagine
+from .imagine import Rollout, imagine
 from .manual import manual_batch
 from .registry import NEEDS_TEXT
 from .shipped import shipped_checkpoint
 
+MAX_TRAJECTORIES = 256  # per request or session: bounds the memory one client can take
+
+
+class RequestError(LwmError, ValueError):
+    """An imagine request the simulator cannot serve (a bad state, an unknown session, ...)."""
+
+
+def check_observation(obs: list | np.ndarray, where: str = "observation") -> np.ndarray:
+    """A compact observation [4, 3] that is a game state: the JSON Schema checks the shape; this
+    checks the meaning (entity ids 2..13 and distinct in channels 0-2, 15/16 or empty in the
+    avatar channel, cells on the grid, an empty channel all zero)."""
+    a = np.asarray(obs)
+    if a.shape != (4, 3) or not np.issubdtype(a.dtype, np.integer):
+        raise RequestError(f"{where}: a compact observation is 4 rows of [id, row, col] integers")
+    ids = a[:, 0]
+    for c in range(4):
+        i, r, col = (int(v) for v in a[c])
+        if i == 0:
+            if r or col:
+                raise RequestError(f"{where}: channel {c} is empty (id 0) but has a cell ({r}, {col})")
+            continue
+        if not (0 <= r < GRID and 0 <= col < GRID):
+            raise RequestError(f"{where}: channel {c} cell ({r}, {col}) is off the {GRID}x{GRID} grid")
+        if c < 3 and not 2 <= i <= 13:
+            raise RequestError(f"{where}: channel {c} holds id {i}; entity channels hold ids 2..13 or 0")
+        if c == 3 and i not in (AVATAR_NO_MESSAGE, AVATAR_WITH_MESSAGE):
+            raise RequestError(f"{where}: the avatar channel holds id {i}; it holds 15, 16 or 0")
+    present = [int(i) for i in ids[:3] if i]
+    if len(present) != len(set(present)):
+        raise RequestError(f"{where}: the entity channels repeat an id ({present}); a game has 3 distinct entities")
+    return a.astype(np.uint8)
+
+
+@dataclass
+class Session:
+    rollout: Rollout
+    manual_version: int
+    last_used: float = field(default_factory=time.monotonic)
+
 
 class Simulator:
-    def __init__(self, checkpoint: str | Path | None = None, encoder: FrozenTextEncoder | None = None) -> None:
+    def __init__(
+        self,
+        checkpoint: str | Path | None = None,
+        encoder: FrozenTextEncoder | None = None,
+        state_path: str | Path | None = None,
+        max_sessions: int = 32,
+        session_ttl: float = 300.0,
+    ) -> None:
         self.checkpoint = Path(checkpoint) if checkpoint else shipped_checkpoint("emma")
         self.model, self.config = load_checkpoint(self.checkpoint)
         self.kind = self.config["kind"]
@@ -32,19 +93,40 @@ class Simulator:
         self.manual: list[str] | None = None
         self.manual_version = 0
         self.manual_source = ""
+        self.game = ""  # split:index of the last environment manual
         self._batch = None
+        self.state_path = Path(state_path) if state_path else None
+        self.sessions: dict[str, Session] = {}
+        self.max_sessions = max_sessions
+        self.session_ttl = session_ttl
+        self._ids = itertools.count(1)
+        self._restore()
 
     @property
     def model_name(self) -> str:
         return f"{self.kind} ({self.config.get('preset', '?')}, {self.config.get('steps', '?')} steps)"
 
-    def set_manual(self, descriptions: list[str], source: str = "") -> int:
-        """Replace the manual; returns its new version. A rejected manual changes nothing."""
+    # ------------------------------------------------------------------ manual
+    def set_manual(self, descriptions: list[str], source: str = "") -> tuple[int, bool]:
+        """Replace the manual. Returns (version, changed): the same text again is not a new version
+        (a latched manual is delivered again to a restarted node). A rejected manual changes nothing."""
+        if self.manual == list(descriptions) and self._batch is not None:
+            return self.manual_version, False
         batch = manual_batch(self.kind, descriptions, self.encoder)
         self.manual, self._batch = list(descriptions), batch
         self.manual_version += 1
         self.manual_source = source
-        return self.manual_version
+        self._save()
+        return self.manual_version, True
+
+    def take_env_manual(self, descriptions: list[str], episode_id: str = "") -> tuple[int, bool]:
+        """The environment's manual is the default: it replaces the manual when no person has
+        given one, or when the game changed (a person's manual was about the previous game)."""
+        game = episode_id.rsplit(":", 1)[0] if episode_id else ""
+        if self.manual_source not in ("", "env") and (not game or game == self.game):
+            return self.manual_version, False
+        self.game = game or self.game
+        return self.set_manual(descriptions, "env")
 
     def status(self) -> dict:
         out = {
@@ -54,21 +136,62 @@ class Simulator:
             "checkpoint": str(self.checkpoint),
             "manual_version": self.manual_version,
             "manual_source": self.manual_source,
+            "sessions": len(self.sessions),
+            "game": self.game,
         }
         if self.manual:
             out["manual"] = self.manual
         return out
 
-    def imagine(self, request: dict) -> dict:
-        """An imagine response for a validated imagine request."""
+    def _save(self) -> None:
+        if self.state_path is None:
+            return
+        self.state_path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = self.state_path.with_suffix(".tmp")
+        state = {"manual": self.manual, "version": self.manual_version, "source": self.manual_source, "game": self.game}
+        tmp.write_text(json.dumps(state))
+        os.replace(tmp, self.state_path)
+
+    def _restore(self) -> None:
+        if self.state_path is None or not self.state_path.is_file():
+            return
+        try:
+            state = json.loads(self.state_path.read_text())
+            if state.get("manual"):
+                self._batch = manual_batch(self.kind, state["manual"], self.encoder)
+                self.manual = list(state["manual"])
+            self.manual_version = int(state.get("version", 0))
+            self.manual_source = str(state.get("source", ""))
+            self.game = str(state.get("game", ""))
+        except (OSError, ValueError, TypeError, KeyError) as exc:
+            raise LwmError(f"cannot read the simulator state {self.state_path}: {exc}") from None
+
+    # ------------------------------------------------------------------ requests
+    def handle(self, request: dict) -> dict:
+        """The response to a schema-valid imagine request; raises LwmError for one it cannot serve."""
+        op = request.get("op", "imagine")
         began = time.perf_counter()
+        out = {"open": self._open, "step": self._step, "close": self._close}.get(op, self.imagine)(request)
+        out["seconds"] = round(time.perf_counter() - began, 4)
+        return out
+
+    def _manual_for(self, request: dict):
         if "manual" in request:
-            batch, manual = manual_batch(self.kind, request["manual"], self.encoder), request["manual"]
-        elif self._batch is not None:
-            batch, manual = self._batch, self.manual
-        else:
-            raise LwmError("no manual yet: publish one on /feedback/manual or put one in the request")
-        first = np.asarray(request["observation"], dtype=np.uint8)
+            return manual_batch(self.kind, request["manual"], self.encoder), list(request["manual"]), 0
+        if self._batch is None:
+            raise RequestError("no manual yet: publish one on /feedback/manual or put one in the request")
+        return self._batch, list(self.manual), self.manual_version
+
+    @staticmethod
+    def _starts(request: dict) -> np.ndarray:
+        if "observations" in request:
+            return np.stack([check_observation(o, f"observations/{i}") for i, o in enumerate(request["observations"])])
+        return check_observation(request["observation"])[None]
+
+    def imagine(self, request: dict) -> dict:
+        """One-shot batched imagination (op `imagine`)."""
+        batch, manual, version = self._manual_for(request)
+        starts = self._starts(request)
         max_steps = int(request.get("max_steps", 32))
         seed = int(request.get("seed", 0))
         if "actions" in request:
@@ -78,21 +201,112 @@ class Simulator:
             for i, seq in enumerate(seqs):
                 actions[i, : min(len(seq), max_steps)] = seq[:max_steps]
         else:
-            n = int(request.get("n", 1))
+            n = int(request.get("n", len(starts)))
             actions = np.random.default_rng(seed).integers(5, size=(n, max_steps))
-        im = imagine(self.model, batch, first, n=n, actions=actions, max_steps=max_steps, seed=seed)
+        if len(starts) not in (1, n):
+            raise RequestError(f"give one start observation or one per trajectory ({n}), got {len(starts)}")
+        first = starts[0] if len(starts) == 1 else starts
+        im = imagine(
+            self.model,
+            batch,
+            first,
+            n=n,
+            actions=actions,
+            max_steps=max_steps,
+            seed=seed,
+            temperature=float(request.get("temperature", 1.0)),
+        )
         return {
             "ok": True,
             "model": self.model_name,
-            "manual_version": self.manual_version if "manual" not in request else 0,
-            "manual": list(manual),
+            "manual_version": version,
+            "manual": manual,
             "trajectories": im.to_json(),
-            "seconds": round(time.perf_counter() - began, 4),
         }
+
+    def _open(self, request: dict) -> dict:
+        self._expire()
+        if len(self.sessions) >= self.max_sessions:
+            raise RequestError(f"{self.max_sessions} imagination sessions are open; close one first")
+        batch, manual, version = self._manual_for(request)
+        starts = self._starts(request)
+        n = int(request.get("n", len(starts)))
+        if len(starts) not in (1, n):
+            raise RequestError(f"give one start observation or one per trajectory ({n}), got {len(starts)}")
+        rollout = Rollout(
+            self.model,
+            batch,
+            starts[0] if len(starts) == 1 else starts,
+            n,
+            int(request.get("max_steps", 32)),
+            float(request.get("temperature", 1.0)),
+            int(request.get("seed", 0)),
+        )
+        sid = f"s{next(self._ids)}"
+        self.sessions[sid] = Session(rollout, version)
+        return {
+            "ok": True,
+            "op": "open",
+            "session": sid,
+            "model": self.model_name,
+            "manual_version": version,
+            "manual": manual,
+            "active": rollout.active.tolist(),
+        }
+
+    def _session(self, request: dict) -> tuple[str, Session]:
+        sid = request["session"]
+        session = self.sessions.get(sid)
+        if session is None:
+            raise RequestError(f"no imagination session {sid!r} (never opened, closed, or expired)")
+        session.last_used = time.monotonic()
+        return sid, session
+
+    def _step(self, request: dict) -> dict:
+        sid, session = self._session(request)
+        r = session.rollout
+        if r.finished:
+            raise RequestError(f"session {sid} has ended; close it")
+        stepped = r.step(np.asarray(request["actions"]))
+        t = r.t
+        conf = r.result().confidence()
+        return {
+            "ok": True,
+            "op": "step",
+            "session": sid,
+            "manual_version": session.manual_version,
+            "t": t,
+            "stepped": stepped.tolist(),
+            "observations": r.observations[stepped, t].tolist(),
+            "rewards": r.rewards[stepped, t].tolist(),
+            "dones": r.dones[stepped, t].tolist(),
+            "confidence": conf[stepped, t].round(4).tolist(),
+            "active": r.active.tolist(),
+            "finished": r.finished,
+        }
+
+    def _close(self, request: dict) -> dict:
+        sid = request["session"]
+        self.sessions.pop(sid, None)  # closing twice is harmless (a retried close)
+        return {"ok": True, "op": "close", "session": sid}
+
+    def _expire(self) -> None:
+        now = time.monotonic()
+        for sid in [s for s, v in self.sessions.items() if now - v.last_used > self.session_ttl]:
+            del self.sessions[sid]
 
 
 def error_response(error: Exception) -> dict:
     return {"ok": False, "error": str(error)}
 
 
-__all__ = ["Simulator", "error_response", "messages"]
+def serve_json(sim: Simulator, text: str) -> tuple[str, Exception | None]:
+    """What the service answers to a request string (a valid response, never an exception), and
+    the error when the request was refused, for the caller to report."""
+    try:
+        return messages.dump("imagine_response", sim.handle(messages.parse("imagine_request", text))), None
+    except Exception as exc:  # a bad request must never take the server down
+        return messages.dump("imagine_response", error_response(exc)), exc
+
+
+__all__ = ["RequestError", "Simulator", "check_observation", "error_response", "serve_json"]

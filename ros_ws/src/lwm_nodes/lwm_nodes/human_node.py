@@ -1,130 +1,223 @@
 """Human-feedback node: shows each plan to a person and publishes what they answer.
 
-Interactive (a terminal): the plan's imagined frames (ASCII), rewards and confidence, then
-    a                 approve (the planner executes the plan in the real game)
-    r                 reject (the planner re-plans)
+Interactive (a terminal): the plan's imagined frames (ASCII), rewards, confidence and sampled
+futures, then
+    a                 approve (the planner's policy then acts in the real game)
+    r                 reject (the planner imagines again)
     c STEP:ACTION ... corrections, e.g. "c 1:3 2:3" (actions 0 up, 1 down, 2 left, 3 right, 4 stay)
-    m                 a new manual: three descriptions, one per line
-Scripted (parameter scripted:=true): the simulated human of the paper, knowing the true game:
-it corrects the plan's actions with go_to_goal's, approves once the imagined return reaches
-`approve_return` (or after `max_rounds`), prints a summary when the report arrives and exits.
+    i [ROUNDS]        online imitation: the planner imagines rounds of episodes and asks for labels
+    l STATE:ACTION ...  label states of the current label request ("l -" sends none)
+    x                 abort: execute nothing
+    m                 a new manual, three descriptions, one per line (published on /feedback/manual)
+Scripted (parameter scripted:=true): the paper's simulated human, the expert reading the true
+manual (lwm_models.agent.reviewer): it labels every state of each imitation round, corrects,
+and never approves a plan whose shown trajectory dies; it prints a summary when the execution
+report arrives and exits.
 """
 
 from __future__ import annotations
 
+import queue
 import sys
 import threading
 
 import numpy as np
+from lwm_interfaces.srv import Imagine, Json
 
-from lwm_models.agent.expert import expert_actions, role_ids
+from lwm_models.agent.imaginer import ServiceImaginer
+from lwm_models.agent.reviewer import ScriptedReviewer
 from lwm_models.data.splits import load_split
 from lwm_models.messenger.constants import ACTION_NAMES
 from lwm_models.messenger.render import render_ascii
-from lwm_nodes.common import FEEDBACK, LATCHED, JsonNode, run
+from lwm_nodes.common import FEEDBACK, LATCHED, JsonNode, json_caller, run
 
 
 class HumanNode(JsonNode):
     def __init__(self, stop: threading.Event | None = None) -> None:
         super().__init__("human_feedback")
-        self.scripted = bool(self.declare_parameter("scripted", False).value)
-        self.approve_return = float(self.declare_parameter("approve_return", 1.0).value)
-        self.max_rounds = int(self.declare_parameter("max_rounds", 3).value)
-        self.max_corrections = int(self.declare_parameter("max_corrections", 8).value)
+        p = self.declare_parameter
+        self.scripted = bool(p("scripted", False).value)
+        self.teach = p("teach", "online_il").value
+        self.approve_return = float(p("approve_return", 1.0).value)
+        self.max_death_share = float(p("max_death_share", 0.5).value)
+        self.episodes = int(p("episodes", 1).value)  # scripted: reviews before it exits
+        self.reports: set[str] = set()
+        self.max_rounds = int(p("max_rounds", 4).value)
+        self.quiet = bool(p("quiet", False).value)  # scripted: one line per plan instead of frames
         self.stop = stop
         self.game = None
-        self.rounds = 0
+        self.reviewer: ScriptedReviewer | None = None
         self.plan: dict | None = None
+        self.request: dict | None = None
         self.publish_feedback = self.json_publisher("/review/feedback", "review_feedback", FEEDBACK)
+        self.publish_labels = self.json_publisher("/review/labels", "labels", FEEDBACK)
+        self.publish_manual = self.json_publisher("/feedback/manual", "manual", LATCHED)
+        self.imaginer = ServiceImaginer(
+            json_caller(self, self.create_client(Imagine, "/lwm/imagine"), "imagine_response", 30.0)
+        )
+        self.env_reset = json_caller(self, self.create_client(Json, "/env/reset"), None, 30.0)
         self.json_subscription("/env/state", "state", self.on_state, LATCHED)
         self.json_subscription("/planner/plan", "plan", self.on_plan, LATCHED)
+        self.json_subscription("/planner/label_request", "label_request", self.on_label_request, LATCHED)
         self.json_subscription("/planner/report", "execution_report", self.on_report, LATCHED)
+        # The scripted reviewer may imagine through /lwm/imagine (filtered BC), which must not block
+        # the executor that delivers the answer: it works in its own thread.
+        self.work: queue.Queue = queue.Queue()
+        threading.Thread(target=self._work, daemon=True).start()
         if not self.scripted:
             threading.Thread(target=self.read_commands, daemon=True).start()
 
     def on_state(self, payload: dict) -> None:
         g = payload["game"]
-        self.game = load_split(g["split"])[g["index"]]
+        game = load_split(g["split"])[g["index"]]
+        if game is not self.game:
+            self.game = game
+            self.reviewer = ScriptedReviewer(
+                game, self.teach, self.approve_return, self.max_death_share, self.max_rounds
+            )
 
     def on_plan(self, plan: dict) -> None:
         if (
             self.plan is not None
-            and plan["plan_id"] <= self.plan["plan_id"]
             and plan["review_id"] == self.plan["review_id"]
+            and plan["plan_id"] <= self.plan["plan_id"]
         ):
             return  # a latched repeat
         self.plan = plan
-        self.rounds += 1
-        show(plan)
+        show(plan, self.quiet)
         if self.scripted:
-            self.answer_scripted(plan)
+            self.work.put(lambda: self.answer_scripted(plan))
         else:
-            print("answer: a (approve) | r (reject) | c STEP:ACTION ... (correct) | m (new manual)", flush=True)
+            print("answer: a | r | c STEP:ACTION ... | i [ROUNDS] | x | m", flush=True)
 
     def answer_scripted(self, plan: dict) -> None:
-        base = {"review_id": plan["review_id"], "plan_id": plan["plan_id"]}
-        if plan["imagined_return"] >= self.approve_return or self.rounds >= self.max_rounds or self.game is None:
-            self.publish_feedback({**base, "decision": "approve", "comment": f"round {self.rounds}"})
-            print(f"scripted human: approve plan {plan['plan_id']}", flush=True)
+        if self.reviewer is None:
+            print("scripted human: no game state yet; cannot review", flush=True)
             return
-        obs = np.asarray(plan["observations"], dtype=np.uint8)
-        wanted = expert_actions(obs[:-1] if len(obs) > 1 else obs, role_ids(self.game), 1, 0) if len(obs) > 1 else []
-        fixes = [{"step": t + 1, "action": int(a)} for t, a in enumerate(wanted) if a != plan["actions"][t]]
-        if not fixes:
-            self.publish_feedback({**base, "decision": "approve"})
-            print(f"scripted human: approve plan {plan['plan_id']} (nothing to correct)", flush=True)
+        feedback = self.reviewer.review(plan, self.imaginer)
+        self.publish_feedback(feedback)
+        detail = {
+            "corrections": lambda: f" {len(feedback['corrections'])} step(s)",
+            "demonstrations": lambda: f" {len(feedback['demonstrations'])} plans",
+        }
+        what = feedback["decision"] + detail.get(feedback["decision"], str)()
+        print(f"scripted human: {what} on plan {plan['plan_id']}", flush=True)
+
+    def on_label_request(self, request: dict) -> None:
+        if (
+            self.request is not None
+            and request["review_id"] == self.request["review_id"]
+            and request["request_id"] <= self.request["request_id"]
+        ):
             return
-        fixes = fixes[: self.max_corrections]
-        self.publish_feedback({**base, "decision": "corrections", "corrections": fixes})
-        print(f"scripted human: {len(fixes)} correction(s) to plan {plan['plan_id']}", flush=True)
+        self.request = request
+        n = len(request["observations"])
+        if self.scripted and self.reviewer is not None:
+            self.publish_labels(self.reviewer.label(request))
+            if not self.quiet or request["round"] == request["rounds"]:
+                print(
+                    f"scripted human: labelled {n} states of round {request['round']}/{request['rounds']}", flush=True
+                )
+        elif not self.scripted:
+            print(
+                f"label request {request['request_id']} (round {request['round']}/{request['rounds']}): {n} imagined "
+                f"states; label with l STATE:ACTION ... (states 0..{n - 1}), or l - for none",
+                flush=True,
+            )
 
     def on_report(self, report: dict) -> None:
         print(
             f"SUMMARY review {report['review_id']}: plan {report['plan_id']} after {report['revisions']} revision(s); "
             f"imagined return {report['imagined_return']:+.2f}, real return {report['real_return']:+.2f}, "
-            f"{report['steps']} steps, {report['outcome']}",
+            f"{report['steps']} steps, {report['outcome']}, reviews asked again {report.get('reviews_asked', 0)}",
             flush=True,
         )
-        if self.scripted and self.stop is not None:
-            self.stop.set()
+        if not self.scripted or report["review_id"] in self.reports:
+            return
+        self.reports.add(report["review_id"])
+        if len(self.reports) >= self.episodes:
+            if self.stop is not None:
+                self.stop.set()
+            return
+        # The operator's part: start the next episode (the next seed) of the same game.
+        seed = int(report["review_id"].rsplit(":", 1)[-1]) + 1
+        self.work.put(lambda: self.env_reset({"seed": seed}))
+
+    def _work(self) -> None:
+        while True:
+            job = self.work.get()
+            try:
+                job()
+            except Exception as exc:  # a failed answer must not end the review
+                self.report_error("scripted reviewer", exc)
 
     def read_commands(self) -> None:
         for line in sys.stdin:
             line = line.strip()
-            if not line or self.plan is None:
-                continue
-            base = {"review_id": self.plan["review_id"], "plan_id": self.plan["plan_id"]}
             try:
-                if line == "a":
-                    self.publish_feedback({**base, "decision": "approve"})
-                elif line == "r":
-                    self.publish_feedback({**base, "decision": "reject"})
-                elif line.startswith("c "):
-                    fixes = [{"step": int(s), "action": int(a)} for s, a in (p.split(":") for p in line[2:].split())]
-                    self.publish_feedback({**base, "decision": "corrections", "corrections": fixes})
-                elif line == "m":
-                    print("three descriptions, one per line:", flush=True)
-                    manual = [sys.stdin.readline().strip() for _ in range(3)]
-                    self.publish_feedback({**base, "decision": "manual", "manual": manual})
-                else:
-                    print("unknown command; a | r | c STEP:ACTION ... | m", flush=True)
+                self.command(line)
             except Exception as exc:  # a typo must not end the review
                 print(f"not sent: {exc}", flush=True)
 
+    def command(self, line: str) -> None:
+        if line == "m":
+            print("three descriptions, one per line:", flush=True)
+            manual = [sys.stdin.readline().strip() for _ in range(3)]
+            self.publish_manual({"descriptions": manual, "source": "human"})
+            return
+        if line.startswith("l "):
+            if self.request is None:
+                raise ValueError("there is no label request")
+            pairs = [] if line[2:].strip() == "-" else [p.split(":") for p in line[2:].split()]
+            self.publish_labels(
+                {
+                    "review_id": self.request["review_id"],
+                    "request_id": self.request["request_id"],
+                    "states": [int(s) for s, _ in pairs],
+                    "actions": [int(a) for _, a in pairs],
+                    "reviewer": "terminal",
+                }
+            )
+            return
+        if not line or self.plan is None:
+            return
+        base = {"review_id": self.plan["review_id"], "plan_id": self.plan["plan_id"], "reviewer": "terminal"}
+        if line == "a":
+            self.publish_feedback({**base, "decision": "approve"})
+        elif line == "r":
+            self.publish_feedback({**base, "decision": "reject"})
+        elif line == "x":
+            self.publish_feedback({**base, "decision": "abort"})
+        elif line.split()[0] == "i":
+            rounds = line.split()[1:]
+            self.publish_feedback({**base, "decision": "imitate", **({"rounds": int(rounds[0])} if rounds else {})})
+        elif line.startswith("c "):
+            fixes = [{"step": int(s), "action": int(a)} for s, a in (p.split(":") for p in line[2:].split())]
+            self.publish_feedback({**base, "decision": "corrections", "corrections": fixes})
+        else:
+            print("unknown command; a | r | c STEP:ACTION ... | i [ROUNDS] | l STATE:ACTION ... | x | m", flush=True)
 
-def show(plan: dict) -> None:
+
+def show(plan: dict, quiet: bool = False) -> None:
+    f = plan["futures"]
     print(
-        f"\n=== plan {plan['plan_id']} (review {plan['review_id']}, manual v{plan['manual_version']}): "
-        f"imagined return {plan['imagined_return']:+.2f} ===",
+        f"\n=== plan {plan['plan_id']} (review {plan['review_id']}, {plan.get('reason', '')}, manual "
+        f"v{plan['manual_version']}, from step {plan.get('start_step', 0)}): imagined return "
+        f"{plan['imagined_return']:+.2f}; {f['k']} sampled futures: {f['death_share']:.0%} die, return "
+        f"{f['return_mean']:+.2f} +- {f['return_std']:.2f} ===",
         flush=True,
     )
+    if quiet:
+        return
     for t, obs in enumerate(plan["observations"]):
         if t == 0:
             print("start")
         else:
+            agree = plan.get("agreement", [])
             print(
                 f"step {t}: {ACTION_NAMES[plan['actions'][t - 1]]}, reward {plan['rewards'][t - 1]:+.1f}, "
                 f"confidence {plan['confidence'][t - 1]:.2f}"
+                + (f", futures agree {agree[t - 1]:.0%}" if len(agree) >= t else "")
             )
         print(render_ascii(np.asarray(obs, dtype=np.uint8)))
     sys.stdout.flush()

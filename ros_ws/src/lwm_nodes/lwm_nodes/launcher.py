@@ -80,19 +80,34 @@ class Supervised:
 
 
 def default_nodes(
-    checkpoint: str, split: str, index: int, seed: int, policy: str, ledger: str, human: str
+    checkpoint: str,
+    split: str,
+    index: int,
+    seed: int,
+    policy: str,
+    ledger: str,
+    human: str,
+    state: str = "",
+    planner: dict[str, str] | None = None,
+    reviewer: dict[str, str] | None = None,
 ) -> list[NodeSpec]:
-    """human: 'scripted', 'interactive' or 'none'."""
-    model = {"checkpoint": checkpoint} if checkpoint else {}
+    """human: 'scripted', 'interactive' or 'none'. The planner loads no world model: only the
+    simulator gets the checkpoint."""
     nodes = [
         NodeSpec("env", "lwm_nodes.env_node", {"split": split, "index": str(index), "seed": str(seed)}),
-        NodeSpec("simulator", "lwm_nodes.simulator_node", model),
         NodeSpec(
-            "planner", "lwm_nodes.planner_node", {**model, "ledger": ledger, **({"policy": policy} if policy else {})}
+            "simulator",
+            "lwm_nodes.simulator_node",
+            {**({"checkpoint": checkpoint} if checkpoint else {}), **({"state": state} if state else {})},
+        ),
+        NodeSpec(
+            "planner",
+            "lwm_nodes.planner_node",
+            {"ledger": ledger, **({"policy": policy} if policy else {}), **(planner or {})},
         ),
     ]
     if human == "scripted":
-        nodes.append(NodeSpec("human", "lwm_nodes.human_node", {"scripted": "true"}, final=True))
+        nodes.append(NodeSpec("human", "lwm_nodes.human_node", {"scripted": "true", **(reviewer or {})}, final=True))
     elif human == "interactive":
         nodes.append(NodeSpec("human", "lwm_nodes.human_node", {}, interactive=True, final=True))
     return nodes
@@ -176,6 +191,26 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--run-for", type=float, default=None, help="stop after this many seconds (demos, tests)")
     parser.add_argument("--policy", default="", help="policy directory for the planner (default: shipped, if any)")
     parser.add_argument("--ledger", default="logs/ledger.sqlite", help="review ledger (SQLite)")
+    parser.add_argument(
+        "--state",
+        default=None,
+        help="the simulator's manual and version, kept across restarts (default: LOG_DIR/simulator_state.json)",
+    )
+    parser.add_argument(
+        "--iterations", type=int, default=None, help="online-imitation rounds per teaching (default 40, Table 3's)"
+    )
+    parser.add_argument("--futures", type=int, default=None, help="sampled futures shown with each plan (default 8)")
+    parser.add_argument(
+        "--teach",
+        choices=["online_il", "filtered_bc", "corrections"],
+        default="online_il",
+        help="how the scripted reviewer teaches: label imagined states (online imitation), send its own plans "
+        "(filtered BC), or only correct",
+    )
+    parser.add_argument(
+        "--episodes", type=int, default=1, help="scripted: episodes (seeds SEED, SEED+1, ...) to review"
+    )
+    parser.add_argument("--show-frames", action="store_true", help="the scripted reviewer prints every plan's frames")
     human = parser.add_mutually_exclusive_group()
     human.add_argument("--scripted", action="store_true", help="the simulated human reviews; exits with a summary")
     human.add_argument("--no-human", action="store_true", help="start no human-feedback node")
@@ -188,7 +223,12 @@ def main(argv: list[str] | None = None) -> int:
         human = "none"
     else:
         human = "interactive"
-    nodes = default_nodes(args.checkpoint, args.split, args.index, args.seed, args.policy, args.ledger, human)
+    planner = {k: str(v) for k, v in (("iterations", args.iterations), ("futures", args.futures)) if v is not None}
+    reviewer = {"teach": args.teach, "quiet": "false" if args.show_frames else "true", "episodes": str(args.episodes)}
+    state = args.state if args.state is not None else str(args.log_dir / "simulator_state.json")
+    nodes = default_nodes(
+        args.checkpoint, args.split, args.index, args.seed, args.policy, args.ledger, human, state, planner, reviewer
+    )
     echo = not args.quiet and human != "interactive"  # a person reads the human node's screen
     return supervise(nodes, args.log_dir, args.ready_timeout, args.max_restarts, echo, args.run_for)
 

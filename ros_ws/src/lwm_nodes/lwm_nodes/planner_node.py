@@ -1,149 +1,86 @@
-"""Planner/agent node: plans in imagination, publishes each plan for review, takes review
-feedback, and executes only an approved plan in the real game (through /env/reset and /env/step),
-publishing an execution report. Every step of the review goes to the ledger.
+"""Planner/agent node: a thin adapter between ROS and the review loop of lwm_models.agent.review.
+
+It holds no world model: everything it imagines goes through the simulator's /lwm/imagine
+(step-wise sessions for the policy acting in imagination). It follows the simulator's manual
+version on /lwm/status (a new version re-plans), opens a review for each fresh episode on
+/env/state, publishes plans (/planner/plan), label requests (/planner/label_request) and execution
+reports (/planner/report), takes /review/feedback and /review/labels, and acts in the real game
+through /env/reset and /env/step, closed loop, only after approval.
 """
 
 from __future__ import annotations
 
-import threading
-
-import numpy as np
-from lwm_interfaces.srv import Json
+from lwm_interfaces.srv import Imagine, Json
 
 from lwm_models import messages
-from lwm_models.agent.agent import PlanReviewAgent
-from lwm_models.agent.policy import EmmaPolicy
-from lwm_models.agent.review import ReviewSession, load_policy
+from lwm_models.agent.imaginer import ServiceImaginer
+from lwm_models.agent.learning import Budget
+from lwm_models.agent.policy import EmmaPolicy, load_policy
+from lwm_models.agent.review import Ports, ReviewConfig, ReviewLoop
+from lwm_models.errors import LwmError
 from lwm_models.ledger import Ledger
-from lwm_models.world.checkpoint import load_checkpoint
 from lwm_models.world.frozen_text import FrozenTextEncoder
-from lwm_models.world.shipped import SHIPPED_POLICY, shipped_checkpoint
-from lwm_nodes.common import FEEDBACK, LATCHED, JsonNode, run
+from lwm_models.world.shipped import SHIPPED_POLICY
+from lwm_nodes.common import FEEDBACK, LATCHED, JsonNode, json_caller, run
 
 
 class PlannerNode(JsonNode):
     def __init__(self) -> None:
         super().__init__("planner")
-        checkpoint = self.declare_parameter("checkpoint", "").value
-        policy_dir = self.declare_parameter("policy", "").value
-        ledger_path = self.declare_parameter("ledger", "logs/ledger.sqlite").value
-        self.step_timeout = float(self.declare_parameter("step_timeout", 10.0).value)
-        self.world, config = load_checkpoint(checkpoint or shipped_checkpoint("emma"))
-        self.world_kind = config["kind"]
-        self.policy_dir = policy_dir
-        self.encoder = FrozenTextEncoder()
-        self.ledger = Ledger(ledger_path)
-        self.session: ReviewSession | None = None
-        self.manual: list[str] | None = None
-        self.state: dict | None = None
-        self.executing = False
-        self.publish_plan = self.json_publisher("/planner/plan", "plan", LATCHED)
-        self.publish_report = self.json_publisher("/planner/report", "execution_report", LATCHED)
-        self.json_subscription("/env/manual", "manual", self.on_env_manual, LATCHED)
-        self.json_subscription("/env/state", "state", self.on_state, LATCHED)
-        self.pending: list[dict] = []  # feedback that arrived before its review was open
-        self.json_subscription("/review/feedback", "review_feedback", self.on_feedback, FEEDBACK)
-        self.reset_client = self.create_client(Json, "/env/reset")
-        self.step_client = self.create_client(Json, "/env/step")
-
-    def on_env_manual(self, payload: dict) -> None:
-        self.manual = payload["descriptions"]
-        self.maybe_start()
-
-    def on_state(self, payload: dict) -> None:
-        if payload["t"] == 0 and not self.executing:
-            self.state = payload
-            self.maybe_start()
-
-    def maybe_start(self) -> None:
-        """A new review starts when a fresh episode (t = 0) and its manual are both known."""
-        if self.manual is None or self.state is None or self.executing:
-            return
-        review_id = self.state["episode_id"]
-        if self.session is not None and self.session.review_id == review_id:
-            return
-        if self.policy_dir:
-            policy = load_policy(self.policy_dir)
-        elif (SHIPPED_POLICY / "config.json").is_file():
-            policy = load_policy(SHIPPED_POLICY)
-        else:
-            policy = EmmaPolicy().eval()
-        agent = PlanReviewAgent(
-            self.world,
-            self.world_kind,
-            policy,
-            self.encoder,
-            np.asarray(self.state["observation"], dtype=np.uint8),
-            list(self.manual),
+        p = self.declare_parameter
+        self.declare_threads()
+        self.policy_dir = p("policy", "").value
+        ledger = p("ledger", "logs/ledger.sqlite").value
+        call_timeout = float(p("call_timeout", 30.0).value)
+        budget = Budget(
+            iterations=int(p("iterations", Budget.iterations).value),
+            episodes=int(p("episodes", Budget.episodes).value),
+            grad_steps=int(p("grad_steps", Budget.grad_steps).value),
         )
-        if self.ledger.history(review_id):
-            # A restart: rebuild the review from the ledger instead of starting it again.
-            self.session, plan, approved = ReviewSession.resume(agent, review_id, self.ledger)
-            self.get_logger().info(f"review {review_id} resumed from the ledger at plan {plan and plan['plan_id']}")
-            if plan is not None:
-                self.publish_plan(plan)
-            if approved is not None:
-                self.executing = True
-                threading.Thread(target=self.execute, args=(approved,), daemon=True).start()
-        else:
-            self.session = ReviewSession(agent, review_id, self.ledger)
-            self.publish_plan(self.session.start())
-            self.get_logger().info(f"review {review_id}: plan 1 published")
-        for payload in self.pending:
-            self.on_feedback(payload)
-        self.pending = []
+        config = ReviewConfig(
+            futures=int(p("futures", ReviewConfig.futures).value),
+            budget=budget,
+            label_timeout=float(p("label_timeout", ReviewConfig.label_timeout).value),
+            risk_threshold=float(p("risk_threshold", ReviewConfig.risk_threshold).value),
+            risk_horizon=int(p("risk_horizon", ReviewConfig.risk_horizon).value),
+            max_rereviews=int(p("max_rereviews", ReviewConfig.max_rereviews).value),
+        )
+        imagine = self.create_client(Imagine, "/lwm/imagine")
+        self.imaginer = ServiceImaginer(json_caller(self, imagine, "imagine_response", call_timeout))
+        ports = Ports(
+            publish_plan=self.json_publisher("/planner/plan", "plan", LATCHED),
+            publish_label_request=self.json_publisher("/planner/label_request", "label_request", LATCHED),
+            publish_report=self.json_publisher("/planner/report", "execution_report", LATCHED),
+            env_reset=self._env(json_caller(self, self.create_client(Json, "/env/reset"), None, call_timeout)),
+            env_step=self._env(json_caller(self, self.create_client(Json, "/env/step"), None, call_timeout)),
+            log=self.get_logger().info,
+        )
+        self.loop = ReviewLoop(self.make_policy, FrozenTextEncoder(), self.imaginer, ports, Ledger(ledger), config)
+        self.json_subscription("/lwm/status", "status", self.loop.on_status, LATCHED)
+        self.json_subscription("/env/state", "state", self.loop.on_state, LATCHED)
+        self.json_subscription("/review/feedback", "review_feedback", self.loop.on_feedback, FEEDBACK)
+        self.json_subscription("/review/labels", "labels", self.loop.on_labels, FEEDBACK)
 
-    def on_feedback(self, payload: dict) -> None:
-        if self.session is None:
-            self.pending.append(payload)
-            return
-        if (
-            payload["review_id"] == self.session.review_id
-            and (payload["plan_id"], payload["decision"]) in self.session.answered
-        ):
-            return  # feedback the ledger already holds (redelivered after a restart)
-        if self.executing:
-            raise messages.MessageError("a plan is being executed; feedback is closed")
-        what, plan = self.session.feedback(payload)
-        if what == "plan":
-            self.publish_plan(plan)
-            self.get_logger().info(f"plan {plan['plan_id']} published after {payload['decision']}")
-        else:
-            self.executing = True
-            threading.Thread(target=self.execute, args=(plan,), daemon=True).start()
+    def make_policy(self) -> EmmaPolicy:
+        if self.policy_dir:
+            return load_policy(self.policy_dir)
+        if (SHIPPED_POLICY / "config.json").is_file():
+            return load_policy(SHIPPED_POLICY)
+        return EmmaPolicy().eval()
 
-    def _call(self, client, request: dict) -> dict:
-        import json
+    @staticmethod
+    def _env(call):
+        def env(payload: dict) -> dict:
+            answer = call(payload)
+            if not answer.get("ok"):
+                raise LwmError(answer.get("error", "the environment refused the request"))
+            return messages.validate("state", {"version": 1, **answer["state"]})
 
-        if not client.wait_for_service(timeout_sec=self.step_timeout):
-            raise RuntimeError(f"{client.srv_name} is not available")
-        response = client.call(Json.Request(request=json.dumps(request)), timeout_sec=self.step_timeout)
-        if response is None:
-            raise RuntimeError(f"{client.srv_name} did not answer")
-        answer = json.loads(response.response)
-        if not answer.get("ok"):
-            raise RuntimeError(f"{client.srv_name}: {answer.get('error')}")
-        return answer["state"]
+        return env
 
-    def execute(self, plan: dict) -> None:
-        """Run the approved actions in the real game (a worker thread: the executor keeps spinning
-        so the service responses arrive)."""
-        try:
-            seed = int(self.session.review_id.rsplit(":", 1)[-1])
-            state = self._call(self.reset_client, {"seed": seed})
-            observations = [state["observation"]]
-            for action in plan["actions"]:
-                state = self._call(self.step_client, {"action": int(action)})
-                observations.append(state["observation"])
-                if state["done"]:
-                    break
-            report = self.session.report(plan, observations, state["return"], state["outcome"])
-            self.publish_report(report)
-            self.get_logger().info(f"executed plan {plan['plan_id']}: real return {report['real_return']:+.2f}")
-        except Exception as exc:
-            self.report_error("execution", exc)
-        finally:
-            self.executing = False
+    def destroy_node(self) -> None:
+        self.loop.close()
+        super().destroy_node()
 
 
 def main() -> int:

@@ -1,0 +1,205 @@
+"""Where the agent imagines: the world model's owner, reached through its request interface.
+
+The planner holds no world model. Everything it imagines (plans, sampled futures, online-imitation
+rounds, the execution monitor) goes through `ServiceImaginer`, which speaks the simulator's
+imagine requests (msgs_json/imagine_request) over any transport: a ROS service call in the planner
+node, `Simulator.handle` in process (tests, benchmarks). A policy acts inside imagination through a
+step-wise session: open, one `step` per time step with the running trajectories' actions, close.
+
+`LocalImaginer` runs a world model in process with the same interface (Table 3, which compares
+world models, owns them).
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import LwmError
+from ..world.base import ManualBatch, WorldModel
+from ..world.imagine import Imagination, Policy, imagine
+
+
+class ImagineError(LwmError, RuntimeError):
+    """The simulator refused a request (the message says why)."""
+
+
+class Unavailable(LwmError, ConnectionError):
+    """The transport could not reach the simulator (not started, restarting, timed out)."""
+
+
+@dataclass
+class CallStats:
+    calls: int = 0
+    round_trip_s: float = 0.0  # what the caller waited
+    server_s: float = 0.0  # what the simulator spent (its `seconds`)
+    retries: int = 0
+
+    @property
+    def overhead_s(self) -> float:
+        return self.round_trip_s - self.server_s
+
+
+@dataclass
+class ServiceImaginer:
+    """call(request dict) -> response dict; raises Unavailable when the simulator cannot be reached.
+
+    A rollout whose session is lost (the simulator restarted) or whose transport fails is started
+    again from scratch, for up to `retry_for` seconds: imagination is stateless for the caller.
+    """
+
+    call: Callable[[dict], dict]
+    retry_for: float = 120.0
+    stats: CallStats = field(default_factory=CallStats)
+
+    def request(self, payload: dict) -> dict:
+        began = time.perf_counter()
+        answer = self.call({"version": 1, **payload})
+        self.stats.calls += 1
+        self.stats.round_trip_s += time.perf_counter() - began
+        self.stats.server_s += float(answer.get("seconds", 0.0))
+        if not answer.get("ok"):
+            raise ImagineError(answer.get("error", "the simulator refused the request"))
+        return answer
+
+    def _retrying(self, attempt: Callable[[], Imagination]) -> Imagination:
+        deadline = time.monotonic() + self.retry_for
+        while True:
+            try:
+                return attempt()
+            except (Unavailable, ImagineError) as exc:
+                lost = isinstance(exc, Unavailable) or "no imagination session" in str(exc)
+                if not lost or time.monotonic() > deadline:
+                    raise
+                self.stats.retries += 1
+                time.sleep(0.5)
+
+    def rollout(
+        self,
+        starts: np.ndarray,
+        policy: Policy,
+        n: int | None = None,
+        max_steps: int = 32,
+        seed: int = 0,
+        temperature: float = 1.0,
+    ) -> Imagination:
+        """n trajectories from starts ([4, 3], or [n, 4, 3]), each step's actions chosen by
+        policy(observations [k, t, 4, 3], trajectory indices [k], t)."""
+        starts = np.asarray(starts, dtype=np.uint8)
+        n = n or (1 if starts.ndim == 2 else len(starts))
+        return self._retrying(lambda: self._rollout_once(starts, policy, n, max_steps, seed, temperature))
+
+    def _rollout_once(self, starts, policy, n, max_steps, seed, temperature) -> Imagination:
+        req = {"op": "open", "n": n, "max_steps": max_steps, "seed": int(seed), "temperature": temperature}
+        req.update({"observation": starts.tolist()} if starts.ndim == 2 else {"observations": starts.tolist()})
+        opened = self.request(req)
+        sid = opened["session"]
+        out = _Trajectories(n, max_steps, starts, opened.get("manual_version", 0))
+        active = np.asarray(opened["active"], dtype=np.int64)
+        try:
+            t = 0
+            while len(active):
+                t += 1
+                actions = np.asarray(policy(out.observations[active, :t], active, t), dtype=np.int64)
+                step = self.request({"op": "step", "session": sid, "actions": actions.tolist()})
+                out.add(step, actions)
+                active = np.asarray(step["active"], dtype=np.int64)
+                if step["finished"]:
+                    break
+        finally:
+            try:
+                self.request({"op": "close", "session": sid})
+            except (Unavailable, ImagineError):
+                pass  # the session expires on its own
+        return out.imagination()
+
+    def replay(self, starts: np.ndarray, actions: list[list[int]], max_steps: int = 32, seed: int = 0) -> Imagination:
+        """One-shot: each trajectory replays its action sequence (padded with 'stay')."""
+        starts = np.asarray(starts, dtype=np.uint8)
+
+        def once() -> Imagination:
+            req = {"actions": [list(map(int, a)) for a in actions], "max_steps": max_steps, "seed": int(seed)}
+            req.update({"observation": starts.tolist()} if starts.ndim == 2 else {"observations": starts.tolist()})
+            answer = self.request(req)
+            out = _Trajectories(len(actions), max_steps, starts, answer.get("manual_version", 0))
+            for i, tr in enumerate(answer["trajectories"]):
+                out.set_trajectory(i, tr)
+            return out.imagination()
+
+        return self._retrying(once)
+
+
+class _Trajectories:
+    """Imagination arrays filled from session steps (or one-shot trajectories)."""
+
+    def __init__(self, n: int, max_steps: int, starts: np.ndarray, manual_version: int) -> None:
+        steps = max_steps + 1
+        self.observations = np.zeros((n, steps, 4, 3), dtype=np.uint8)
+        self.observations[:, 0] = starts
+        self.actions = np.zeros((n, steps), dtype=np.int64)
+        self.rewards = np.zeros((n, steps), dtype=np.float32)
+        self.dones = np.zeros((n, steps), dtype=bool)
+        self.confidence = np.ones((n, steps, 1), dtype=np.float32)
+        self.lengths = np.ones(n, dtype=np.int64)
+        self.manual_version = int(manual_version)
+
+    def add(self, step: dict, actions: np.ndarray) -> None:
+        idx = np.asarray(step["stepped"], dtype=np.int64)
+        t = int(step["t"])
+        self.actions[idx, t] = actions
+        self.observations[idx, t] = np.asarray(step["observations"], dtype=np.uint8).reshape(-1, 4, 3)
+        self.rewards[idx, t] = step["rewards"]
+        self.dones[idx, t] = step["dones"]
+        self.confidence[idx, t, 0] = step["confidence"]
+        self.lengths[idx] = t + 1
+
+    def set_trajectory(self, i: int, tr: dict) -> None:
+        n = len(tr["observations"])
+        self.observations[i, :n] = np.asarray(tr["observations"], dtype=np.uint8)
+        self.actions[i, 1:n] = tr["actions"]
+        self.rewards[i, 1:n] = tr["rewards"]
+        self.dones[i, 1:n] = tr["dones"]
+        self.confidence[i, 1:n, 0] = tr["confidence"]
+        self.lengths[i] = n
+
+    def imagination(self) -> Imagination:
+        return Imagination(
+            self.observations,
+            self.actions,
+            self.rewards,
+            self.dones,
+            self.lengths,
+            self.confidence,
+            self.manual_version,
+        )
+
+
+@dataclass
+class LocalImaginer:
+    """A world model and its manual in this process, with ServiceImaginer's rollout interface."""
+
+    world: WorldModel
+    manual: ManualBatch
+    manual_version: int = 0
+
+    def rollout(self, starts, policy, n=None, max_steps=32, seed=0, temperature=1.0) -> Imagination:
+        starts = np.asarray(starts, dtype=np.uint8)
+        n = n or (1 if starts.ndim == 2 else len(starts))
+        return imagine(
+            self.world, self.manual, starts, n=n, policy=policy, max_steps=max_steps, seed=seed, temperature=temperature
+        )
+
+
+def in_process(simulator) -> Callable[[dict], dict]:
+    """A transport to a Simulator in this process that takes the same JSON path as the service
+    (encode, validate, handle, encode, decode), for tests and benchmarks."""
+    from ..world.simulator import serve_json
+
+    return lambda request: json.loads(serve_json(simulator, json.dumps(request))[0])
+
+
+__all__ = ["CallStats", "ImagineError", "LocalImaginer", "ServiceImaginer", "Unavailable", "in_process"]

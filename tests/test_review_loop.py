@@ -1,0 +1,244 @@
+"""The review loop's core without ROS: the simulator's sessions, the imagination client, manual
+versions, the scripted reviewer and the review state machine, all with real components in one
+process (the ROS tests run the same code across processes)."""
+
+from __future__ import annotations
+
+import tempfile
+import threading
+
+import numpy as np
+import pytest
+import torch
+
+from lwm_models import messages
+from lwm_models.agent.agent import FeedbackError
+from lwm_models.agent.imaginer import ImagineError, LocalImaginer, ServiceImaginer, in_process
+from lwm_models.agent.learning import Budget
+from lwm_models.agent.policy import load_policy
+from lwm_models.agent.review import Ports, ReviewConfig, ReviewLoop
+from lwm_models.agent.reviewer import ScriptedReviewer
+from lwm_models.ledger import Ledger
+from lwm_models.messenger.session import GameSession
+from lwm_models.world.frozen_text import FrozenTextEncoder
+from lwm_models.world.imagine import imagine
+from lwm_models.world.shipped import SHIPPED, SHIPPED_POLICY
+from lwm_models.world.simulator import RequestError, Simulator, check_observation
+
+MANUAL = [
+    "the plane is the deadly enemy and it chases you.",
+    "the ball has the secret message and runs away from you.",
+    "the robot is the goal and never moves.",
+]
+OBS = [[2, 2, 7], [10, 7, 2], [11, 7, 7], [15, 2, 2]]
+
+
+@pytest.fixture(scope="module")
+def encoder():
+    return FrozenTextEncoder()
+
+
+@pytest.fixture(scope="module")
+def sim(encoder):
+    torch.set_num_threads(1)
+    s = Simulator(encoder=encoder)
+    s.set_manual(MANUAL, "test")
+    return s
+
+
+def test_a_session_imagines_what_one_shot_imagination_does(sim):
+    actions = np.array([[3, 3, 1, 1, 2, 4], [1, 1, 3, 3, 4, 0]])
+    one_shot = imagine(sim.model, sim._batch, np.array(OBS), n=2, actions=actions, max_steps=6, seed=7)
+    opened = sim.handle({"op": "open", "observation": OBS, "n": 2, "max_steps": 6, "seed": 7})
+    assert opened["manual_version"] == sim.manual_version and opened["active"] == [0, 1]
+    active, t = opened["active"], 0
+    while active:
+        t += 1
+        step = sim.handle({"op": "step", "session": opened["session"], "actions": actions[active, t - 1].tolist()})
+        for k, i in enumerate(step["stepped"]):
+            assert step["observations"][k] == one_shot.observations[i, t].tolist()
+            assert step["rewards"][k] == one_shot.rewards[i, t] and step["dones"][k] == one_shot.dones[i, t]
+        active = step["active"]
+        if step["finished"]:
+            break
+    sim.handle({"op": "close", "session": opened["session"]})
+    with pytest.raises(RequestError, match="no imagination session"):
+        sim.handle({"op": "step", "session": opened["session"], "actions": [0]})
+
+
+def test_remote_and_local_imagination_agree(sim):
+    """The same policy through the service's JSON path and in process: the same trajectories."""
+    policy = load_policy(SHIPPED_POLICY)
+    from lwm_models.agent.agent import PlanReviewAgent
+
+    remote = ServiceImaginer(in_process(sim))
+    local = LocalImaginer(sim.model, sim._batch)
+    a = PlanReviewAgent(policy, sim.encoder, remote, MANUAL).make_plan(np.array(OBS), 1, seed=3)
+    b = PlanReviewAgent(policy, sim.encoder, local, MANUAL).make_plan(np.array(OBS), 1, seed=3)
+    assert a.observations == b.observations and a.actions == b.actions and a.futures == b.futures
+    assert a.manual_version == sim.manual_version and remote.stats.calls > len(a.actions)
+
+
+@pytest.mark.parametrize(
+    "obs, why",
+    [
+        ([[2, 2, 7], [2, 7, 2], [11, 7, 7], [15, 2, 2]], "repeat an id"),
+        ([[15, 2, 7], [10, 7, 2], [11, 7, 7], [15, 2, 2]], "entity channels hold ids 2..13"),
+        ([[2, 2, 7], [10, 7, 2], [11, 7, 7], [4, 2, 2]], "avatar channel holds id 4"),
+        ([[2, 12, 7], [10, 7, 2], [11, 7, 7], [15, 2, 2]], "off the"),
+        ([[0, 3, 3], [10, 7, 2], [11, 7, 7], [15, 2, 2]], "empty"),
+    ],
+)
+def test_states_that_are_no_game_state_are_refused(sim, obs, why):
+    with pytest.raises(RequestError, match=why):
+        check_observation(obs)
+    answer = in_process(sim)({"version": 1, "observation": obs, "n": 1, "max_steps": 2})
+    assert not answer["ok"] and why.split()[0] in answer["error"]
+
+
+def test_manual_versions_persist_and_the_same_text_is_no_new_version(encoder, tmp_path):
+    state = tmp_path / "sim.json"
+    s = Simulator(encoder=encoder, state_path=state)
+    assert s.take_env_manual(MANUAL, "newall-test:0:0") == (1, True)
+    assert s.take_env_manual(MANUAL, "newall-test:0:1") == (1, False)  # the same text again
+    human = list(reversed(MANUAL))
+    assert s.set_manual(human, "human") == (2, True)
+    assert s.take_env_manual(MANUAL[::2] + MANUAL[1:2], "newall-test:0:2") == (2, False)  # a person's manual stays
+    restarted = Simulator(encoder=encoder, state_path=state)
+    assert (restarted.manual_version, restarted.manual, restarted.manual_source) == (2, human, "human")
+    assert restarted.take_env_manual(MANUAL, "newall-test:5:0") == (3, True)  # a new game: its manual
+
+
+def test_the_observational_model_ignores_the_manual_and_emma_does_not(encoder):
+    request = {"observation": OBS, "actions": [[1, 1, 3, 3]], "max_steps": 4, "seed": 5}
+    for kind, differs in (("emma", True), ("observational", False)):
+        s = Simulator(SHIPPED[kind], encoder=encoder)
+        s.set_manual(MANUAL)
+        before = s.handle(request)["trajectories"][0]
+        s.set_manual(list(reversed(MANUAL[1:])) + ["the queen is the goal and never moves."])
+        after = s.handle(request)["trajectories"][0]
+        assert (before["confidence"] != after["confidence"]) == differs, kind
+
+
+def plan_dict(rewards: list[float], death_share: float, ret: float | None = None) -> dict:
+    n = len(rewards)
+    return {
+        "review_id": "newall-test:0:0",
+        "plan_id": 1,
+        "start_step": 0,
+        "actions": [3] * n,
+        "observations": [OBS] * (n + 1),
+        "rewards": rewards,
+        "imagined_return": sum(rewards) if ret is None else ret,
+        "futures": {"k": 8, "death_share": death_share},
+    }
+
+
+def test_the_scripted_reviewer_never_approves_a_plan_that_dies():
+    game = GameSession("newall-test", 0).env.spec
+    for teach in ("online_il", "corrections"):
+        reviewer = ScriptedReviewer(game, teach=teach)
+        decisions = [reviewer.review({**plan_dict([0.0, -1.0], 0.0), "plan_id": i})["decision"] for i in range(1, 30)]
+        assert "approve" not in decisions and decisions[-1] == "abort"
+        assert (decisions[0] == "imitate") == (teach == "online_il")
+    reviewer = ScriptedReviewer(game)
+    assert reviewer.review(plan_dict([0.5, 1.0], 0.0))["decision"] == "approve"
+    assert reviewer.review(plan_dict([0.5, 1.0], 0.9))["decision"] != "approve"  # most futures die
+
+
+class LoopHarness:
+    """A review loop on the real game and an in-process simulator; feedback from the test."""
+
+    def __init__(self, sim: Simulator, budget: Budget) -> None:
+        self.session = GameSession("newall-test", 0)
+        self.sim = sim
+        self.plans: list[dict] = []
+        self.requests: list[dict] = []
+        self.reports: list[dict] = []
+        self.changed = threading.Condition()
+        ports = Ports(
+            self._add("plan", self.plans),
+            self._add("label_request", self.requests),
+            self._add("execution_report", self.reports),
+            lambda p: self.session.reset(p["seed"]),
+            lambda p: self.session.step(p["action"]),
+            log=lambda s: None,
+        )
+        config = ReviewConfig(futures=2, budget=budget, label_timeout=30, max_rereviews=0)
+        self.ledger = Ledger(tempfile.mktemp(suffix=".sqlite"))
+        self.loop = ReviewLoop(
+            lambda: load_policy(SHIPPED_POLICY),
+            sim.encoder,
+            ServiceImaginer(in_process(sim)),
+            ports,
+            self.ledger,
+            config,
+        )
+
+    def _add(self, kind: str, box: list):
+        def publish(payload: dict) -> None:
+            messages.validate(kind, {"version": 1, **payload})  # what a node would send
+            with self.changed:
+                box.append(payload)
+                self.changed.notify_all()
+
+        return publish
+
+    def wait(self, box: list, n: int, timeout: float = 120) -> dict:
+        with self.changed:
+            assert self.changed.wait_for(lambda: len(box) >= n, timeout), f"waited for {n}, have {len(box)}"
+            return box[n - 1]
+
+
+def test_review_loop_manual_labels_and_closed_loop_execution(encoder):
+    sim = Simulator(encoder=encoder)
+    h = LoopHarness(sim, Budget(iterations=1, episodes=2, grad_steps=2))
+    state = h.session.reset(0)
+    sim.take_env_manual(h.session.manual()["descriptions"], state["episode_id"])
+    h.loop.on_status(sim.status())
+    h.loop.on_state(state)
+    first = h.wait(h.plans, 1)
+    assert first["manual_version"] == 1 and first["reason"] == "start"
+
+    # Language feedback reaches the plan under review: a new version re-plans under it.
+    sim.set_manual(MANUAL, "human")
+    h.loop.on_status(sim.status())
+    second = h.wait(h.plans, 2)
+    assert second["manual_version"] == 2 and second["reason"] == "manual" and second["manual"] == MANUAL
+
+    with pytest.raises(FeedbackError, match="not under review"):
+        h.loop.on_feedback({"review_id": first["review_id"], "plan_id": 1, "decision": "reject"})
+
+    # Online imitation: labels are checked against the request, and bad ones change nothing.
+    h.loop.on_feedback({"review_id": second["review_id"], "plan_id": 2, "decision": "imitate"})
+    request = h.wait(h.requests, 1)
+    n = len(request["observations"])
+    base = {"review_id": request["review_id"], "request_id": request["request_id"]}
+    for bad, why in [
+        ({"states": [0, 1], "actions": [3]}, "one action per state"),
+        ({"states": [n], "actions": [3]}, "never shown"),
+        ({**base, "request_id": 7, "states": [0], "actions": [3]}, "no label request 7"),
+        ({"states": [0, 0], "actions": [3, 3]}, "twice"),
+    ]:
+        with pytest.raises(FeedbackError, match=why):
+            h.loop.on_labels({**base, **bad})
+    assert len(h.plans) == 2
+    h.loop.on_labels({**base, "states": list(range(n)), "actions": [3] * n})
+    third = h.wait(h.plans, 3)
+    assert third["reason"] == "imitation" and third["learning"]["labelled"] == n
+
+    # Approval: the policy acts in the real game from real observations, and reports.
+    h.loop.on_feedback({"review_id": third["review_id"], "plan_id": 3, "decision": "approve"})
+    report = h.wait(h.reports, 1)
+    assert report["outcome"] in ("won", "died", "time_limit") and report["plans"] == [3]
+    assert len(report["observations"]) == report["steps"] + 1 and report["observations"][0] == state["observation"]
+    kinds = [r["kind"] for r in h.ledger.history()]
+    assert kinds.count("label_request") == kinds.count("labels") == 1 and kinds[-1] == "report"
+    h.loop.close()
+
+
+def test_a_request_that_failed_is_an_error_not_a_retry(sim):
+    imaginer = ServiceImaginer(in_process(sim), retry_for=0.1)
+    with pytest.raises(ImagineError, match="repeat an id"):
+        bad = np.array([[2, 2, 7], [2, 7, 2], [11, 7, 7], [15, 2, 2]])
+        imaginer.rollout(bad, lambda o, i, t: np.zeros(len(i), dtype=int), max_steps=2)
