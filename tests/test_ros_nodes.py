@@ -30,8 +30,21 @@ OBS = [[2, 2, 7], [10, 7, 2], [11, 7, 7], [15, 2, 2]]
 @pytest.fixture(scope="module")
 def system(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("ros")
+    # Every node process records the checkpoint files it opens (an audit hook, loaded by Python's
+    # sitecustomize from PYTHONPATH): the test can tell which process read world-model weights.
+    audit = tmp / "audit"
+    audit.mkdir()
+    (audit / "sitecustomize.py").write_text(
+        "import os, sys\n"
+        "def _hook(event, args):\n"
+        "    if event == 'open' and isinstance(args[0], str) and 'checkpoints' in args[0]:\n"
+        f"        with open(os.path.join({str(audit)!r}, f'{{os.getpid()}}.txt'), 'a') as f:\n"
+        "            f.write(args[0] + '\\n')\n"
+        "sys.addaudithook(_hook)\n"
+    )
     env = {
         **os.environ,
+        "PYTHONPATH": os.pathsep.join(filter(None, [str(audit), os.environ.get("PYTHONPATH", "")])),
         "ROS_DOMAIN_ID": str(1 + os.getpid() % 100),
         "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST",
         "ROS_LOG_DIR": str(tmp / "roslog"),
@@ -171,8 +184,10 @@ def test_malformed_payloads_get_errors_and_the_nodes_keep_serving(system):
     expected = {
         ("lwm_simulator", "/feedback/manual"),
         ("lwm_simulator", "/env/manual"),
-        ("planner", "/env/manual"),
+        ("planner", "/lwm/status"),
         ("planner", "/env/state"),
+        ("planner", "/review/labels"),
+        ("human_feedback", "/planner/label_request"),
         ("human_feedback", "/env/state"),
         ("human_feedback", "/planner/plan"),
         ("human_feedback", "/planner/report"),
@@ -190,12 +205,17 @@ def test_malformed_payloads_get_errors_and_the_nodes_keep_serving(system):
     try:
         time.sleep(2.0)
         plan = latched(system, "/planner/plan")
+        base = {"version": 1, "review_id": plan["review_id"]}
         for topic, payload in [
             ("/feedback/manual", '{"version": 1, "descriptions": ["just one"]}'),
             ("/env/manual", "{not json"),
             ("/env/state", '{"version": 1, "t": "zero"}'),
             ("/planner/plan", "[]"),
             ("/planner/report", '{"version": 1}'),
+            ("/lwm/status", '{"version": 1, "node": 3}'),
+            ("/planner/label_request", '{"version": 1, "review_id": "x"}'),
+            # Schema-valid, but there is no such label request.
+            ("/review/labels", json.dumps({**base, "request_id": 999, "states": [0], "actions": [1]})),
             # Valid JSON for the schema, but step 99 is not in the plan: the agent rejects it.
             (
                 "/review/feedback",
@@ -210,7 +230,7 @@ def test_malformed_payloads_get_errors_and_the_nodes_keep_serving(system):
                 ),
             ),
         ]:
-            readers = {"/env/manual": 2, "/env/state": 2}.get(topic, 1)
+            readers = {"/env/state": 2}.get(topic, 1)
             assert lwm_ros(system, "pub", topic, payload, "--raw", "-w", str(readers), "--wait", "10").returncode == 0
         bad = call(system, "/lwm/imagine", "{not json")
         assert not bad["ok"] and "not JSON" in bad["error"]
@@ -274,6 +294,87 @@ def node_pid(module: str, domain: str) -> int:
     raise AssertionError(f"no {module} process in domain {domain}")
 
 
+MANUAL2 = [
+    "the dog is the goal and it does not move.",
+    "the deadly enemy is the plane, chasing you.",
+    "a ball carries the secret message; it flees.",
+]
+
+
+def test_manual_feedback_reaches_the_plan_under_review(system):
+    before = latched(system, "/planner/plan")
+    pub = lwm_ros(
+        system, "pub", "/feedback/manual", json.dumps({"version": 1, "descriptions": MANUAL2}), "--kind", "manual"
+    )
+    assert pub.returncode == 0, pub.stderr
+    st = wait_for(lambda: (s := status(system))["manual"] == MANUAL2 and s)
+    assert st, "the simulator did not take the manual"
+    plan = wait_for(lambda: (p := latched(system, "/planner/plan"))["manual"] == MANUAL2 and p, timeout=60)
+    assert plan, "no plan under the new manual"
+    assert plan["manual_version"] == st["manual_version"] > before["manual_version"]
+    assert plan["review_id"] == before["review_id"] and plan["plan_id"] > before["plan_id"]
+    assert plan["reason"] == "manual" and plan["futures"]["k"] >= 1
+
+
+def test_bad_labels_get_errors_and_change_nothing_then_a_fixed_resend_is_taken(system):
+    plan = latched(system, "/planner/plan")
+    imitate = {**{k: plan[k] for k in ("review_id", "plan_id")}, "version": 1, "decision": "imitate", "rounds": 1}
+    assert lwm_ros(system, "pub", "/review/feedback", json.dumps(imitate), "--kind", "review_feedback").returncode == 0
+    request = wait_for(
+        lambda: (r := latched(system, "/planner/label_request"))["review_id"] == plan["review_id"] and r, timeout=60
+    )
+    assert request, "no label request"
+    n = len(request["observations"])
+    base = {"version": 1, "review_id": request["review_id"], "request_id": request["request_id"]}
+    errors = subprocess.Popen(
+        [sys.executable, "-m", "lwm_models.cli.main", "ros", "echo", "/lwm/errors", "--timeout", "60"],
+        stdout=subprocess.PIPE,
+        text=True,
+        env=system["env"],
+    )
+    lines: list[str] = []
+    threading.Thread(target=lambda: lines.extend(errors.stdout), daemon=True).start()
+    try:
+        time.sleep(2.0)
+        bad = [
+            ({**base, "states": [0, 1], "actions": [3]}, "one action per state"),
+            ({**base, "states": [n], "actions": [3]}, "never shown"),
+            ({**base, "request_id": request["request_id"] + 5, "states": [0], "actions": [3]}, "no label request"),
+            ({**base, "states": [0], "actions": [7]}, "actions"),
+        ]
+        for payload, _ in bad:
+            assert lwm_ros(system, "pub", "/review/labels", json.dumps(payload), "--raw").returncode == 0
+        want = [why for _, why in bad]
+
+        def seen():
+            got = [json.loads(x)["error"] for x in list(lines) if x.strip()]
+            return all(any(w in g for g in got) for w in want) and got
+
+        assert wait_for(seen, timeout=30), f"errors seen: {lines}"
+        assert latched(system, "/planner/plan")["plan_id"] == plan["plan_id"]  # nothing changed
+        fixed = {**base, "states": list(range(n)), "actions": [4] * n}
+        assert lwm_ros(system, "pub", "/review/labels", json.dumps(fixed), "--kind", "labels").returncode == 0
+        revised = wait_for(lambda: (p := latched(system, "/planner/plan"))["plan_id"] > plan["plan_id"] and p, 90)
+        assert revised and revised["reason"] == "imitation" and revised["learning"]["labelled"] >= n
+    finally:
+        errors.terminate()
+        errors.wait(timeout=30)
+
+
+def test_the_planner_process_reads_no_world_model_weights(system):
+    domain = system["env"]["ROS_DOMAIN_ID"]
+    audit = system["tmp"] / "audit"
+
+    def opened(module: str) -> str:
+        f = audit / f"{node_pid(module, domain)}.txt"
+        return f.read_text() if f.is_file() else ""
+
+    assert "checkpoints/emma-lwm/" in opened("lwm_nodes.simulator_node")  # the audit sees the world model
+    planner = opened("lwm_nodes.planner_node")
+    assert "checkpoints/policy-bc/" in planner  # it does load its policy
+    assert not any(f"checkpoints/{m}/" in planner for m in ("emma-lwm", "observational", "oracle"))
+
+
 def test_a_killed_node_is_restarted(system):
     log = system["tmp"] / "logs" / "simulator.log"
     os.kill(node_pid("lwm_nodes.simulator_node", system["env"]["ROS_DOMAIN_ID"]), signal.SIGKILL)
@@ -301,6 +402,10 @@ def start_scripted(tmp_path: Path, domain_offset: int) -> tuple[subprocess.Popen
         str(tmp_path / "logs"),
         "--ledger",
         str(ledger),
+        "--iterations",
+        "4",
+        "--futures",
+        "4",
     ]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
     return proc, env, ledger
@@ -321,6 +426,27 @@ def test_scripted_review_loop_end_to_end(tmp_path):
     )
     kinds = [line.split()[2] for line in shown.stdout.splitlines()[1:]]
     assert kinds[0] == "manual" and kinds[1] == "plan" and "feedback" in kinds and kinds[-1] == "executed"
+
+
+def test_simulator_killed_mid_review_the_review_resumes(tmp_path):
+    proc, env, ledger_path = start_scripted(tmp_path, 75)
+    from lwm_models.ledger import Ledger
+
+    def labelling():
+        return ledger_path.is_file() and any(r["kind"] == "labels" for r in Ledger(ledger_path).history())
+
+    assert wait_for(labelling, timeout=240), "no online-imitation round started"
+    os.kill(node_pid("lwm_nodes.simulator_node", env["ROS_DOMAIN_ID"]), signal.SIGKILL)
+    out, _ = proc.communicate(timeout=600)
+    assert proc.returncode == 0, out[-3000:]
+    assert "simulator exited with -9; restart 1" in out
+    records = Ledger(ledger_path).history()
+    kinds = [r["kind"] for r in records]
+    assert kinds.count("report") == 1 and kinds.count("label_request") == kinds.count("labels") >= 1
+    plan_ids = [r["payload"]["plan_id"] for r in records if r["kind"] == "plan"]
+    assert plan_ids == sorted(set(plan_ids))
+    # The restarted simulator kept the manual's version: every plan says version 1.
+    assert {r["payload"]["manual_version"] for r in records if r["kind"] == "plan"} == {1}
 
 
 def test_planner_killed_mid_review_resumes_from_the_ledger(tmp_path):
