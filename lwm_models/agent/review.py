@@ -508,9 +508,16 @@ class ReviewLoop:
             r.phase = "done"
             self.ledger.record(r.review_id, "report", report)
         self.ports.publish_report(report)
+        stats = getattr(self.imaginer, "stats", None)
         self.ports.log(
             f"review {r.review_id}: {report['outcome']}, real return {report['real_return']:+.2f} "
             f"(imagined {report['imagined_return']:+.2f}), reviews asked again: {ex.reviews_asked}"
+            + (
+                f"; imagine calls {stats.calls}, round trip {stats.round_trip_s:.2f} s, "
+                f"simulator {stats.server_s:.2f} s, retries {stats.retries}"
+                if stats is not None
+                else ""
+            )
         )
         with self.lock:
             self._maybe_start()

@@ -90,11 +90,16 @@ def default_nodes(
     state: str = "",
     planner: dict[str, str] | None = None,
     reviewer: dict[str, str] | None = None,
+    texts: list[str] | None = None,
 ) -> list[NodeSpec]:
     """human: 'scripted', 'interactive' or 'none'. The planner loads no world model: only the
     simulator gets the checkpoint."""
     nodes = [
-        NodeSpec("env", "lwm_nodes.env_node", {"split": split, "index": str(index), "seed": str(seed)}),
+        NodeSpec(
+            "env",
+            "lwm_nodes.env_node",
+            {"split": split, "index": str(index), "seed": str(seed), **({"texts": ",".join(texts)} if texts else {})},
+        ),
         NodeSpec(
             "simulator",
             "lwm_nodes.simulator_node",
@@ -208,6 +213,12 @@ def main(argv: list[str] | None = None) -> int:
         "(filtered BC), or only correct",
     )
     parser.add_argument(
+        "--texts",
+        nargs="+",
+        default=None,
+        help="human-written description files the game draws its manuals from (default: the project's generator)",
+    )
+    parser.add_argument(
         "--episodes", type=int, default=1, help="scripted: episodes (seeds SEED, SEED+1, ...) to review"
     )
     parser.add_argument("--show-frames", action="store_true", help="the scripted reviewer prints every plan's frames")
@@ -227,7 +238,17 @@ def main(argv: list[str] | None = None) -> int:
     reviewer = {"teach": args.teach, "quiet": "false" if args.show_frames else "true", "episodes": str(args.episodes)}
     state = args.state if args.state is not None else str(args.log_dir / "simulator_state.json")
     nodes = default_nodes(
-        args.checkpoint, args.split, args.index, args.seed, args.policy, args.ledger, human, state, planner, reviewer
+        args.checkpoint,
+        args.split,
+        args.index,
+        args.seed,
+        args.policy,
+        args.ledger,
+        human,
+        state,
+        planner,
+        reviewer,
+        args.texts,
     )
     echo = not args.quiet and human != "interactive"  # a person reads the human node's screen
     return supervise(nodes, args.log_dir, args.ready_timeout, args.max_restarts, echo, args.run_for)

@@ -1,0 +1,148 @@
+"""The review loop on the real multi-process system: for each of N NewAll test games (the games of
+`lwm agent table3 --games N`), start the launcher with its four nodes and the scripted reviewer,
+let the review run to its execution report, and read the ledger and the planner's log.
+
+Prints per game and overall: real return (mean, 95% interval over games), outcome, whether an
+approved plan's shown trajectory died, time from feedback to the revised plan per feedback kind
+(p50, max), the /lwm/imagine calls and their overhead over the simulator's own time, and the
+comparison with Table 3's online-imitation records on the same games (results/table3_records.jsonl).
+
+    .venv/bin/python benchmarks/review_loop.py [--games 10] [--texts FILE ...] [--out results/review_loop.jsonl]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import re
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from lwm_models.data.splits import load_split  # noqa: E402
+from lwm_models.ledger import Ledger  # noqa: E402
+
+TEXTS = ROOT.parent / "shared" / "data" / "messenger-texts"
+STATS = re.compile(r"imagine calls (\d+), round trip ([\d.]+) s, simulator ([\d.]+) s")
+
+
+def run_game(index: int, seed: int, args, work: Path) -> dict:
+    logs = work / f"game{index}"
+    ledger = logs / "ledger.sqlite"
+    cmd = [sys.executable, "-m", "lwm_nodes.launcher", "--scripted", "--quiet", "--split", args.split]
+    cmd += ["--index", str(index), "--seed", str(seed), "--log-dir", str(logs), "--ledger", str(ledger)]
+    cmd += ["--teach", args.teach] + (["--texts", *args.texts] if args.texts else [])
+    if args.iterations:
+        cmd += ["--iterations", str(args.iterations)]
+    env = {**os.environ, "ROS_DOMAIN_ID": str(args.domain), "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
+    began = time.monotonic()
+    proc = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=args.timeout)
+    wall = time.monotonic() - began
+    if proc.returncode != 0:
+        raise SystemExit(f"game {index}: launcher exited {proc.returncode}:\n{proc.stdout[-2000:]}")
+    records = Ledger(ledger).history()
+    report = next(r["payload"] for r in records if r["kind"] == "report")
+    plans = {r["payload"]["plan_id"]: r["payload"] for r in records if r["kind"] == "plan"}
+    approved = [
+        plans[r["payload"]["plan_id"]]
+        for r in records
+        if r["kind"] == "feedback" and r["payload"]["decision"] == "approve"
+    ]
+    revise = []  # (feedback kind, seconds from the feedback's record to the next plan's)
+    for i, r in enumerate(records):
+        if r["kind"] == "feedback" and r["payload"]["decision"] not in ("approve", "abort"):
+            nxt = next((q for q in records[i + 1 :] if q["kind"] == "plan"), None)
+            if nxt is not None:
+                revise.append((r["payload"]["decision"], nxt["time"] - r["time"]))
+        if r["kind"] == "manual" and r["payload"].get("source") not in ("env", "") and i > 1:
+            nxt = next((q for q in records[i + 1 :] if q["kind"] == "plan"), None)
+            if nxt is not None:
+                revise.append(("manual", nxt["time"] - r["time"]))
+    m = STATS.search((logs / "planner.log").read_text())
+    return {
+        "game": index,
+        "seed": seed,
+        "real_return": report["real_return"],
+        "outcome": report["outcome"],
+        "reviews_asked": report.get("reviews_asked", 0),
+        "plans": len(plans),
+        "approved_plan_died": any(any(x < 0 for x in p["rewards"]) for p in approved),
+        "revise": revise,
+        "imagine_calls": int(m.group(1)) if m else None,
+        "imagine_round_trip_s": float(m.group(2)) if m else None,
+        "imagine_server_s": float(m.group(3)) if m else None,
+        "wall_s": round(wall, 1),
+    }
+
+
+def main() -> int:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--games", type=int, default=10, help="test games, spread as lwm agent table3 --games picks them")
+    p.add_argument("--split", default="newall-test")
+    p.add_argument("--seed", type=int, default=0, help="episode seed of every game")
+    p.add_argument("--teach", default="online_il", choices=["online_il", "filtered_bc", "corrections"])
+    p.add_argument("--iterations", type=int, default=None, help="online-imitation rounds (default: Table 3's 40)")
+    default_texts = [str(TEXTS / "text_train.json"), str(TEXTS / "text_val.json")] if TEXTS.is_dir() else None
+    p.add_argument("--texts", nargs="*", default=default_texts, help="description files of the game's manuals")
+    p.add_argument("--records", type=Path, default=ROOT / "results" / "table3_records.jsonl")
+    p.add_argument("--out", type=Path, default=None, help="JSONL of per-game results (appended)")
+    p.add_argument("--domain", type=int, default=77, help="ROS_DOMAIN_ID of the benchmark's systems")
+    p.add_argument("--timeout", type=float, default=900.0, help="seconds per game")
+    args = p.parse_args()
+    n = len(load_split(args.split))
+    games = np.linspace(0, n - 1, min(args.games, n)).round().astype(int)
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for g in games:
+            row = run_game(int(g), args.seed, args, Path(tmp))
+            rows.append(row)
+            print(json.dumps(row), flush=True)
+            if args.out:
+                with args.out.open("a") as f:
+                    f.write(json.dumps(row) + "\n")
+    r = np.array([x["real_return"] for x in rows])
+    half = 1.96 * r.std(ddof=1) / np.sqrt(len(r)) if len(r) > 1 else 0.0
+    lo, hi = r.mean() - half, r.mean() + half
+    print(f"\nreal return over {len(r)} games: {r.mean():+.2f} (95% interval {lo:+.2f}..{hi:+.2f})")
+    print("outcomes:", {o: sum(x["outcome"] == o for x in rows) for o in ("won", "died", "time_limit", "aborted")})
+    print(f"approved plans whose shown trajectory died: {sum(x['approved_plan_died'] for x in rows)}")
+    kinds = sorted({k for x in rows for k, _ in x["revise"]})
+    for k in kinds:
+        t = np.array([s for x in rows for kk, s in x["revise"] if kk == k])
+        print(f"feedback -> revised plan, {k}: p50 {np.median(t):.2f} s, max {t.max():.2f} s ({len(t)})")
+    calls = [x for x in rows if x["imagine_calls"]]
+    if calls:
+        c = sum(x["imagine_calls"] for x in calls)
+        over = sum(x["imagine_round_trip_s"] - x["imagine_server_s"] for x in calls)
+        server = sum(x["imagine_server_s"] for x in calls)
+        print(
+            f"/lwm/imagine: {c} calls, overhead {over:.1f} s over {server:.1f} s in the simulator "
+            f"({over / c * 1000:.2f} ms per call, {over / server:.1%})"
+        )
+    if args.records.is_file():
+        table = {
+            rec["game"]: rec["return"]
+            for rec in map(json.loads, args.records.read_text().splitlines())
+            if rec["setting"] == "online_il" and rec["model"] == "emma" and rec["split"] == args.split
+        }
+        both = [x for x in rows if x["game"] in table]
+        if both:
+            t3 = np.mean([table[x["game"]] for x in both])
+            mine = np.mean([x["real_return"] for x in both])
+            print(
+                f"Table 3 (online IL, EMMA-LWM, 48 episodes per game) on the same {len(both)} games: {t3:+.2f}; "
+                f"review loop: {mine:+.2f}; difference {mine - t3:+.2f}"
+            )
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
