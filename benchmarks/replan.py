@@ -21,7 +21,8 @@ import torch
 
 from lwm_models.agent.agent import Correction, PlanReviewAgent
 from lwm_models.agent.expert import expert_actions, role_ids
-from lwm_models.agent.learning import Budget, evaluate_real, expert_labeller, start_observations
+from lwm_models.agent.imaginer import LocalImaginer
+from lwm_models.agent.learning import Budget, evaluate_real, expert_labeller, expert_rounds, start_observations
 from lwm_models.agent.policy import EmmaPolicy, load_policy
 from lwm_models.data.dataset import TrajectoryDataset
 from lwm_models.messenger.engine import BatchedMessenger
@@ -67,22 +68,18 @@ def main() -> None:
             first = engine.compact_observation()[0]
             # The agent starts with a wrong manual (the descriptions in the wrong order): the
             # person's language feedback is the true one.
-            agent = PlanReviewAgent(
-                world,
-                config["kind"],
-                copy.deepcopy(warm),
-                encoder,
-                first,
-                list(reversed(manual)),
-                starts=start_observations(game, int(g)),
-            )
-            plan = agent.make_plan()
+            # In process: the world model and its manual behind the same interface as the simulator.
+            imaginer = LocalImaginer(world, manual_batch(config["kind"], list(reversed(manual)), encoder))
+            agent = PlanReviewAgent(copy.deepcopy(warm), encoder, imaginer, list(reversed(manual)))
+            starts = start_observations(game, int(g))
+            plan = agent.make_plan(first, 1)
             policy_manual = manual_batch("emma", manual, encoder)
             returns["warm"].append(evaluate_real(agent.policy, game, policy_manual, 48, int(g)).mean)
 
             t = time.perf_counter()
+            imaginer.manual = manual_batch(config["kind"], manual, encoder)
             agent.set_manual(manual)
-            plan = agent.make_plan()
+            plan = agent.make_plan(first, 2)
             times["manual"].append(time.perf_counter() - t)
 
             obs = np.asarray(plan.observations, dtype=np.uint8)
@@ -90,13 +87,13 @@ def main() -> None:
             fixes = [Correction(i + 1, int(a)) for i, a in enumerate(wanted) if a != plan.actions[i]][:8]
             t = time.perf_counter()
             if fixes:
-                agent.correct(fixes)
-            agent.make_plan()
+                agent.correct(plan, fixes)
+            agent.make_plan(first, 3)
             times["corrections"].append(time.perf_counter() - t)
 
             t = time.perf_counter()
-            agent.imitate(expert_labeller(game, int(g)), budget)
-            agent.make_plan()
+            agent.imitate(expert_rounds(expert_labeller(game, int(g))), starts, budget)
+            agent.make_plan(first, 4)
             times["online_il"].append(time.perf_counter() - t)
             returns["online_il"].append(evaluate_real(agent.policy, game, policy_manual, 48, int(g)).mean)
         print(f"{kind}:")
