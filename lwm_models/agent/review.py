@@ -136,6 +136,7 @@ class ReviewLoop:
         self.manual_source = ""
         self.pending_state: dict | None = None
         self.review: Review | None = None
+        self.early: list[tuple[Callable[[dict], None], dict]] = []  # arrived before any review opened
         self.agents: dict[str, PlanReviewAgent] = {}  # what was learned, per game
         self.jobs: queue.Queue = queue.Queue()
         self.closing = threading.Event()
@@ -177,6 +178,10 @@ class ReviewLoop:
     def on_feedback(self, msg: dict) -> None:
         with self.lock:
             r = self.review
+            if r is None and len(self.early) < 100:
+                # A restarted planner gets the kept feedback before its review is rebuilt: keep it.
+                self.early.append((self.on_feedback, msg))
+                return
             if r is None or msg["review_id"] != r.review_id:
                 current = None if r is None else r.review_id
                 raise FeedbackError(f"feedback for review {msg['review_id']!r}; the open review is {current!r}")
@@ -201,6 +206,9 @@ class ReviewLoop:
     def on_labels(self, msg: dict) -> None:
         with self.lock:
             r = self.review
+            if r is None and len(self.early) < 100:
+                self.early.append((self.on_labels, msg))
+                return
             if r is None or msg["review_id"] != r.review_id:
                 raise FeedbackError(f"labels for review {msg['review_id']!r}, which is not open")
             req = r.request
@@ -263,6 +271,12 @@ class ReviewLoop:
         else:
             self._record_manual(r)
             self._submit(lambda: self._plan(r, "start"))
+        early, self.early = self.early, []
+        for handler, msg in early:
+            try:
+                handler(msg)
+            except LwmError as exc:
+                self.ports.log(f"kept {msg.get('decision', 'labels')} for {msg['review_id']} not taken: {exc}")
 
     def _record_manual(self, r: Review) -> None:
         self.ledger.record(
