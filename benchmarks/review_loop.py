@@ -4,7 +4,8 @@ let the review run to its execution report, and read the ledger and the planner'
 
 Prints per game and overall: real return (mean, 95% interval over games), outcome, whether an
 approved plan's shown trajectory died, time from feedback to the revised plan per feedback kind
-(p50, max), the /lwm/imagine calls and their overhead over the simulator's own time, and the
+(p50, max; language feedback: the reviewer's first answer is the true manual in other words),
+the /lwm/imagine calls and their overhead over the simulator's own time, and the
 comparison with Table 3's online-imitation records on the same games (results/table3_records.jsonl).
 
     .venv/bin/python benchmarks/review_loop.py [--games 10] [--texts FILE ...] [--out results/review_loop.jsonl]
@@ -31,6 +32,7 @@ from lwm_models.data.splits import load_split  # noqa: E402
 from lwm_models.ledger import Ledger  # noqa: E402
 
 TEXTS = ROOT.parent / "shared" / "data" / "messenger-texts"
+SPOKEN = re.compile(r"manual feedback on plan \d+ at ([\d.]+)")
 STATS = re.compile(r"imagine calls (\d+), round trip ([\d.]+) s, simulator ([\d.]+) s")
 
 
@@ -40,6 +42,7 @@ def run_game(index: int, seed: int, args, work: Path) -> dict:
     cmd = [sys.executable, "-m", "lwm_nodes.launcher", "--scripted", "--quiet", "--split", args.split]
     cmd += ["--index", str(index), "--seed", str(seed), "--log-dir", str(logs), "--ledger", str(ledger)]
     cmd += ["--teach", args.teach] + (["--texts", *args.texts] if args.texts else [])
+    cmd += ["--language"] if args.language else []
     if args.iterations:
         cmd += ["--iterations", str(args.iterations)]
     env = {**os.environ, "ROS_DOMAIN_ID": str(args.domain), "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
@@ -62,10 +65,11 @@ def run_game(index: int, seed: int, args, work: Path) -> dict:
             nxt = next((q for q in records[i + 1 :] if q["kind"] == "plan"), None)
             if nxt is not None:
                 revise.append((r["payload"]["decision"], nxt["time"] - r["time"]))
-        if r["kind"] == "manual" and r["payload"].get("source") not in ("env", "") and i > 1:
-            nxt = next((q for q in records[i + 1 :] if q["kind"] == "plan"), None)
-            if nxt is not None:
-                revise.append(("manual", nxt["time"] - r["time"]))
+    for said in map(float, SPOKEN.findall((logs / "human.log").read_text())):
+        # From the human node's publication on /feedback/manual to the plan under the new manual.
+        nxt = next((q for q in records if q["kind"] == "plan" and q["time"] > said), None)
+        if nxt is not None and nxt["payload"]["reason"] == "manual":
+            revise.append(("manual", nxt["time"] - said))
     m = STATS.search((logs / "planner.log").read_text())
     return {
         "game": index,
@@ -89,11 +93,18 @@ def main() -> int:
     p.add_argument("--split", default="newall-test")
     p.add_argument("--seed", type=int, default=0, help="episode seed of every game")
     p.add_argument("--teach", default="online_il", choices=["online_il", "filtered_bc", "corrections"])
+    p.add_argument(
+        "--language",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="the scripted reviewer first gives language feedback (the true manual in other words)",
+    )
     p.add_argument("--iterations", type=int, default=None, help="online-imitation rounds (default: Table 3's 40)")
     default_texts = [str(TEXTS / "text_train.json"), str(TEXTS / "text_val.json")] if TEXTS.is_dir() else None
     p.add_argument("--texts", nargs="*", default=default_texts, help="description files of the game's manuals")
     p.add_argument("--records", type=Path, default=ROOT / "results" / "table3_records.jsonl")
     p.add_argument("--out", type=Path, default=None, help="JSONL of per-game results (appended)")
+    p.add_argument("--logs", type=Path, default=None, help="keep each game's node logs and ledger here")
     p.add_argument("--domain", type=int, default=77, help="ROS_DOMAIN_ID of the benchmark's systems")
     p.add_argument("--timeout", type=float, default=900.0, help="seconds per game")
     args = p.parse_args()
@@ -102,7 +113,7 @@ def main() -> int:
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for g in games:
-            row = run_game(int(g), args.seed, args, Path(tmp))
+            row = run_game(int(g), args.seed, args, args.logs or Path(tmp))
             rows.append(row)
             print(json.dumps(row), flush=True)
             if args.out:

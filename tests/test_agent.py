@@ -235,3 +235,43 @@ def test_policy_sparse_first_convolution_matches_the_dense_grid():
     h = torch.from_numpy(history)
     id_values = policy.id_values(manual).expand(len(h), -1, -1)
     torch.testing.assert_close(policy(h, id_values), policy.forward_dense(h, id_values), rtol=1e-4, atol=1e-4)
+
+
+def test_overlapped_rounds_act_one_round_behind_and_learn_from_every_round(agent_parts):
+    """Budget.overlap: round u+1 is imagined while the policy learns from round u, so its actions
+    come from the policy before that learning; every round is still labelled and learned from."""
+    from lwm_models.agent.learning import expert_rounds
+
+    game, first, _ = agent_parts
+    label = expert_rounds(expert_labeller(game), 6)
+
+    def run(**budget):
+        agent = make_agent(agent_parts)
+        rounds = []
+
+        def recording(im, u):
+            rounds.append(im.actions.copy())
+            return label(im, u)
+
+        losses = agent.imitate(recording, first, Budget(iterations=3, episodes=4, grad_steps=3, **budget))
+        return rounds, losses, agent
+
+    sequential, seq_losses, _ = run()
+    frozen, _, _ = run(lr=0.0)  # every round acted by the initial policy
+    overlapped, losses, agent = run(overlap=True)
+    again, losses_again, _ = run(overlap=True)
+    assert len(overlapped) == 3 and len(losses) == 3 and len(agent.labelled) > 0
+    assert np.array_equal(overlapped[0], sequential[0])  # round 1: the initial policy in both
+    assert np.array_equal(overlapped[1], frozen[1])  # round 2: still the initial policy
+    assert not np.array_equal(sequential[1], frozen[1])  # ... where the sequential run had learned
+    assert all(np.array_equal(a, b) for a, b in zip(overlapped, again)) and losses == losses_again
+    assert seq_losses[0] == losses[0]  # the same first round, the same first fit
+
+
+def test_a_failure_in_the_learning_thread_reaches_the_caller(agent_parts):
+    def broken(im, u):
+        raise RuntimeError("the reviewer's labels were lost")
+
+    agent = make_agent(agent_parts)
+    with pytest.raises(RuntimeError, match="labels were lost"):
+        agent.imitate(broken, agent_parts[1], Budget(iterations=3, episodes=2, grad_steps=1, overlap=True))

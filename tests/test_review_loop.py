@@ -190,6 +190,40 @@ class LoopHarness:
             return box[n - 1]
 
 
+@pytest.mark.parametrize("human_texts", [False, True])
+def test_the_scripted_reviewer_speaks_first_with_the_true_manual_in_other_words(human_texts):
+    from pathlib import Path
+
+    from lwm_models.text import DescriptionPools
+    from lwm_models.text.parser import parse_description
+
+    texts = Path(__file__).resolve().parents[2] / "shared" / "data" / "messenger-texts"
+    if human_texts and not texts.is_dir():
+        pytest.skip("no human-written descriptions beside the repo")
+    pools = (
+        DescriptionPools.from_files([texts / "text_train.json", texts / "text_val.json"])
+        if human_texts
+        else DescriptionPools.generated()
+    )
+    session = GameSession("newall-test", 3, pools)
+    session.reset(5)
+    current = session.manual()["descriptions"]
+    reviewer = ScriptedReviewer(session.env.spec, language=True)
+    plan = {**plan_dict([0.0, 1.0], 0.0), "review_id": "newall-test:3:5", "manual": current}
+    assert reviewer.wants_to_speak(plan) and not reviewer.wants_to_speak(plan)  # once per review
+    assert ScriptedReviewer(session.env.spec).wants_to_speak(plan) is False  # only when asked to
+    manual = reviewer.reworded_manual(pools, "newall-test", current, seed=5)
+    assert sorted(manual) != sorted(current)
+    assert manual == reviewer.reworded_manual(pools, "newall-test", current, seed=5)  # seeded
+    truth = {t[0]: t for t in session.env.spec.triples}
+    if not human_texts:  # the generator's descriptions parse exactly: each is a true triple
+        parsed = [parse_description(d) for d in manual]
+        assert sorted(parsed) == sorted(truth.values())
+    else:  # every description is one of the pool's texts for one of the game's triples
+        for d in manual:
+            assert any(d in pools.pool("newall-test", t) for t in truth.values())
+
+
 def test_review_loop_manual_labels_and_closed_loop_execution(encoder):
     sim = Simulator(encoder=encoder)
     h = LoopHarness(sim, Budget(iterations=1, episodes=2, grad_steps=2))

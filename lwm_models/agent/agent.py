@@ -228,6 +228,7 @@ class PlanReviewAgent:
         seed: int = 0,
         should_stop: Callable[[], bool] = lambda: False,
         on_round: Callable[[int, float, int], None] | None = None,
+        timings: dict[str, float] | None = None,
     ) -> list[float]:
         """Online imitation through the imaginer from `starts`; labels come from label_round."""
         return online_imitation(
@@ -242,6 +243,7 @@ class PlanReviewAgent:
             self.labelled,
             should_stop,
             on_round,
+            timings,
         )
 
     def _fit(self, updates: int) -> None:

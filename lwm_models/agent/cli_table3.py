@@ -52,6 +52,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--episodes", type=int, default=Budget.episodes, help="imagined episodes per round")
     p.add_argument("--grad-steps", type=int, default=Budget.grad_steps, help="minibatch steps per round")
     p.add_argument("--lr", type=float, default=Budget.lr)
+    p.add_argument(
+        "--overlap",
+        action="store_true",
+        help="online imitation: imagine the next round while learning from the last (the review loop's default)",
+    )
     p.add_argument("--plans-per-start", type=int, default=Budget.plans_per_start, help="filtered BC: expert plans")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--threads", type=int, default=0, help="torch threads (0: torch's default)")
@@ -74,6 +79,7 @@ def _budget(args: argparse.Namespace) -> Budget:
         grad_steps=args.grad_steps,
         lr=args.lr,
         plans_per_start=args.plans_per_start,
+        overlap=args.overlap,
     )
 
 

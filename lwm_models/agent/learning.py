@@ -9,7 +9,10 @@ before evaluation.
 
 from __future__ import annotations
 
+import copy
+import time
 from collections.abc import Callable
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -168,6 +171,7 @@ class Budget:
     plans_per_start: int = 8  # filtered BC: expert plans imagined from each start
     keep: float = 0.25  # filtered BC: the share of each start's plans (highest imagined return) cloned
     eval_episodes: int = 48
+    overlap: bool = False  # online imitation: imagine round u+1 while learning from round u (acting lags a round)
 
 
 def start_observations(game: GameSpec, seed: int = 0) -> np.ndarray:
@@ -254,6 +258,7 @@ def online_imitation(
     labelled: LabelledSet | None = None,
     should_stop: Callable[[], bool] = lambda: False,
     on_round: Callable[[int, float, int], None] | None = None,
+    timings: dict[str, float] | None = None,
 ) -> list[float]:
     """Online imitation inside the world model, DAgger style: each round the learner imagines
     `budget.episodes` trajectories (sampling) through `imaginer` (a ServiceImaginer or
@@ -261,40 +266,83 @@ def online_imitation(
     round's states (label_round), and the policy takes `budget.grad_steps` minibatch steps on every
     state labelled so far (`labelled`, which the caller may keep across feedback). Returns the mean
     loss of each round. policy_manual may be a callable, read each round (a new manual mid-way).
+    `timings`, when given, accumulates the seconds spent imagining, labelling, fitting and (with
+    budget.overlap) waiting for the learning thread.
     """
     starts = np.asarray(first_obs, dtype=np.uint8).reshape(-1, 4, 3)
     rng = np.random.default_rng(seed)
     gen = torch.Generator().manual_seed(seed)
     opt = torch.optim.Adam(policy.parameters(), lr=budget.lr)
     labelled = labelled if labelled is not None else LabelledSet()
-    losses = []
-    for u in range(budget.iterations):
-        if should_stop():
-            break
-        manual = policy_manual() if callable(policy_manual) else policy_manual
-        with torch.no_grad():
-            id_values = policy.id_values(manual).expand(budget.episodes, -1, -1)
+    timings = timings if timings is not None else {}
+    losses: list[float] = []
+    # With overlap, a copy of the policy acts in imagination while the policy itself learns in a
+    # second thread (torch releases the GIL in its kernels, and the world model may be another
+    # process): the acting copy is one round behind, as in asynchronous DAgger.
+    acting = copy.deepcopy(policy).eval() if budget.overlap else policy
+    pool = ThreadPoolExecutor(1, thread_name_prefix="imitation-fit") if budget.overlap else None
+    learning: Future | None = None
 
-        def learner(obs: np.ndarray, idx: np.ndarray, t: int, id_values=id_values) -> np.ndarray:
-            return act(policy, stack_history(obs), id_values[: len(idx)], sample=True, generator=gen)
+    def spend(what: str, since: float) -> float:
+        now = time.perf_counter()
+        timings[what] = timings.get(what, 0.0) + now - since
+        return now
 
-        im = imaginer.rollout(
-            starts[rng.integers(len(starts), size=budget.episodes)],
-            learner,
-            n=budget.episodes,
-            max_steps=max_steps,
-            seed=seed * 10_000 + u,
-        )
+    def learn(im: Imagination, u: int, manual: ManualBatch) -> None:
+        began = time.perf_counter()
         labelled.add(*label_round(im, u + 1))
+        began = spend("label", began)
         if len(labelled) == 0:
-            continue
+            return
         h, y = labelled.arrays()
         round_losses = fit_labels(
             policy, manual, h, y, budget.grad_steps, budget.lr, budget.batch, seed * 10_000 + u, opt
         )
+        spend("fit", began)
         losses.append(float(np.mean(round_losses)))
         if on_round is not None:
             on_round(u + 1, losses[-1], len(labelled))
+
+    def finish_learning() -> None:
+        nonlocal learning
+        if learning is not None:
+            began = time.perf_counter()
+            learning, done = None, learning
+            done.result()  # re-raises what failed in the learning thread
+            spend("wait", began)
+            acting.load_state_dict(policy.state_dict())
+
+    try:
+        for u in range(budget.iterations):
+            if should_stop():
+                break
+            manual = policy_manual() if callable(policy_manual) else policy_manual
+            with torch.no_grad():
+                id_values = acting.id_values(manual).expand(budget.episodes, -1, -1)
+
+            def learner(obs: np.ndarray, idx: np.ndarray, t: int, id_values=id_values) -> np.ndarray:
+                return act(acting, stack_history(obs), id_values[: len(idx)], sample=True, generator=gen)
+
+            began = time.perf_counter()
+            im = imaginer.rollout(
+                starts[rng.integers(len(starts), size=budget.episodes)],
+                learner,
+                n=budget.episodes,
+                max_steps=max_steps,
+                seed=seed * 10_000 + u,
+            )
+            spend("imagine", began)
+            if pool is None:
+                learn(im, u, manual)
+            else:
+                finish_learning()
+                if should_stop():  # the last round's learning asked to stop (e.g. no labels came)
+                    break
+                learning = pool.submit(learn, im, u, manual)
+        finish_learning()
+    finally:
+        if pool is not None:
+            pool.shutdown(wait=True)
     return losses
 
 

@@ -45,12 +45,14 @@ from .policy import EmmaPolicy
 
 @dataclass
 class ReviewConfig:
-    """How the planner reviews. Defaults reproduce Table 3's online-imitation recipe."""
+    """How the planner reviews. Defaults reproduce Table 3's online-imitation recipe, except that
+    the rounds overlap (Budget.overlap: the simulator imagines round u+1 while the planner learns
+    from round u, on the other core; the acting policy is one round behind)."""
 
     futures: int = 8  # sampled futures of the policy shown with each plan
     max_steps: int = 32  # the game's time limit
     correction_updates: int = 30  # minibatch steps after corrections
-    budget: Budget = field(default_factory=Budget)  # online imitation: rounds x episodes, steps per round
+    budget: Budget = field(default_factory=lambda: Budget(overlap=True))  # online imitation
     clone_updates: int = 400  # filtered BC: steps on the reviewer's demonstrations (Table 3: 40 x 10)
     label_timeout: float = 120.0  # seconds to wait for a round's labels; imitation ends without them
     risk_threshold: float = 0.5  # execution stops when this share of imagined futures die ...
@@ -415,13 +417,18 @@ class ReviewLoop:
             r.learned["imitation_rounds"] += 1
             return hist[idx], actions
 
+        timings: dict[str, float] = {}
+        began = time.perf_counter()
         r.agent.imitate(
             label_round,
             starts,
             budget,
             seed=r.seed * 1000 + r.plans,
             should_stop=lambda: stop["now"] or self.closing.is_set() or self.review is not r,
+            timings=timings,
         )
+        spent = ", ".join(f"{k} {v:.1f} s" for k, v in timings.items())
+        self.ports.log(f"review {r.review_id}: imitation took {time.perf_counter() - began:.1f} s ({spent})")
 
     # ------------------------------------------------------------------ execution, closed loop
     def _env(self, call: Callable[[dict], dict], payload: dict) -> dict:

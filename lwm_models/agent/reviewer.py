@@ -8,10 +8,15 @@ through the simulator), then corrects the plan's actions where the expert would 
 asks for another imagination when the expert would act the same. From the `max_rounds`-th plan on
 it approves a safe plan, from two plans later any plan whose trajectory lives, and it aborts
 after `max_rounds + 12` plans without one (asking again is cheap: about a second).
+
+With `language`, its first answer in each review is language feedback instead: the true manual
+in its own words (descriptions drawn anew from the description pools), which the planner must
+re-plan under before anything else is decided.
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -34,6 +39,8 @@ class ScriptedReviewer:
     seed: int = 0
     plans_per_start: int = 8  # filtered BC: expert plans imagined per start
     keep: float = 0.25  # filtered BC: the share of each start's plans (best imagined return) sent
+    language: bool = False  # first answer of each review: the true manual in its own words
+    _spoken: set = field(default_factory=set)
     _rounds: dict = field(default_factory=dict)
     _taught: set = field(default_factory=set)
 
@@ -68,6 +75,25 @@ class ScriptedReviewer:
         if fixes:
             return {**base, "decision": "corrections", "corrections": fixes[: self.max_corrections]}
         return {**base, "decision": "reject", "comment": "the expert would act the same; imagine again"}
+
+    def wants_to_speak(self, plan: dict) -> bool:
+        """Language feedback comes first, once per review (before any decision on its plans)."""
+        if not self.language or plan["review_id"] in self._spoken:
+            return False
+        self._spoken.add(plan["review_id"])
+        return True
+
+    def reworded_manual(self, pools, split: str, current: Sequence[str], seed: int = 0) -> list[str]:
+        """The game's true manual (its three triples, in a random order) with descriptions drawn
+        from `pools` (lwm_models.text.DescriptionPools), other words than `current` where the
+        pools allow it."""
+        rng = np.random.default_rng([self.seed, seed, 0x4C414E])  # "LAN": language feedback draws
+        triples = list(self.game.triples)
+        for _ in range(20):
+            manual = list(pools.draw(split, [triples[i] for i in rng.permutation(3)], rng))
+            if sorted(manual) != sorted(current):
+                return manual
+        return manual
 
     def corrections(self, plan: dict) -> list[dict]:
         obs = np.asarray(plan["observations"], dtype=np.uint8)

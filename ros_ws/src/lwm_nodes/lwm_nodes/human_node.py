@@ -12,7 +12,9 @@ futures, then
 Scripted (parameter scripted:=true): the paper's simulated human, the expert reading the true
 manual (lwm_models.agent.reviewer): it labels every state of each imitation round, corrects,
 and never approves a plan whose shown trajectory dies; it prints a summary when the execution
-report arrives and exits.
+report arrives and exits. With language:=true its first answer in each review is language
+feedback: the true manual in other words, published on /feedback/manual (texts:= the description
+files to draw them from; default: the project's generator).
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ from __future__ import annotations
 import queue
 import sys
 import threading
+import time
 
 import numpy as np
 from lwm_interfaces.srv import Imagine, Json
@@ -44,6 +47,10 @@ class HumanNode(JsonNode):
         self.reports: set[str] = set()
         self.max_rounds = int(p("max_rounds", 4).value)
         self.quiet = bool(p("quiet", False).value)  # scripted: one line per plan instead of frames
+        self.language = bool(p("language", False).value)  # scripted: a reworded manual first
+        self.texts = p("texts", "").value  # comma-separated description files for the rewording
+        self.pools = None
+        self.split = ""
         self.stop = stop
         self.game = None
         self.reviewer: ScriptedReviewer | None = None
@@ -71,9 +78,9 @@ class HumanNode(JsonNode):
         g = payload["game"]
         game = load_split(g["split"])[g["index"]]
         if game is not self.game:
-            self.game = game
+            self.game, self.split = game, g["split"]
             self.reviewer = ScriptedReviewer(
-                game, self.teach, self.approve_return, self.max_death_share, self.max_rounds
+                game, self.teach, self.approve_return, self.max_death_share, self.max_rounds, language=self.language
             )
 
     def on_plan(self, plan: dict) -> None:
@@ -94,6 +101,9 @@ class HumanNode(JsonNode):
         if self.reviewer is None:
             print("scripted human: no game state yet; cannot review", flush=True)
             return
+        if self.reviewer.wants_to_speak(plan):
+            self.speak(plan)
+            return
         feedback = self.reviewer.review(plan, self.imaginer)
         self.publish_feedback(feedback)
         detail = {
@@ -102,6 +112,21 @@ class HumanNode(JsonNode):
         }
         what = feedback["decision"] + detail.get(feedback["decision"], str)()
         print(f"scripted human: {what} on plan {plan['plan_id']}", flush=True)
+
+    def speak(self, plan: dict) -> None:
+        """Language feedback: the planner re-plans under the new manual version, and that plan is
+        the one reviewed."""
+        if self.pools is None:
+            from lwm_models.text import DescriptionPools
+
+            self.pools = (
+                DescriptionPools.from_files(self.texts.split(",")) if self.texts else DescriptionPools.generated()
+            )
+        seed = int(plan["review_id"].rsplit(":", 1)[-1])
+        manual = self.reviewer.reworded_manual(self.pools, self.split, plan["manual"], seed)
+        self.publish_manual({"descriptions": manual, "source": "human"})
+        # The wall time lets benchmarks/review_loop.py time feedback -> revised plan.
+        print(f"scripted human: manual feedback on plan {plan['plan_id']} at {time.time():.3f}", flush=True)
 
     def on_label_request(self, request: dict) -> None:
         if (

@@ -221,6 +221,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--episodes", type=int, default=1, help="scripted: episodes (seeds SEED, SEED+1, ...) to review"
     )
+    parser.add_argument(
+        "--language",
+        action="store_true",
+        help="scripted: the reviewer's first answer is language feedback, the true manual in other words",
+    )
     parser.add_argument("--show-frames", action="store_true", help="the scripted reviewer prints every plan's frames")
     human = parser.add_mutually_exclusive_group()
     human.add_argument("--scripted", action="store_true", help="the simulated human reviews; exits with a summary")
@@ -236,6 +241,8 @@ def main(argv: list[str] | None = None) -> int:
         human = "interactive"
     planner = {k: str(v) for k, v in (("iterations", args.iterations), ("futures", args.futures)) if v is not None}
     reviewer = {"teach": args.teach, "quiet": "false" if args.show_frames else "true", "episodes": str(args.episodes)}
+    if args.language:
+        reviewer.update({"language": "true", **({"texts": ",".join(args.texts)} if args.texts else {})})
     state = args.state if args.state is not None else str(args.log_dir / "simulator_state.json")
     nodes = default_nodes(
         args.checkpoint,

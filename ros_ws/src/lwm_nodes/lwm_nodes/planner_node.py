@@ -36,6 +36,8 @@ class PlannerNode(JsonNode):
             iterations=int(p("iterations", Budget.iterations).value),
             episodes=int(p("episodes", Budget.episodes).value),
             grad_steps=int(p("grad_steps", Budget.grad_steps).value),
+            # The simulator imagines the next round while the planner learns from the last one.
+            overlap=bool(p("overlap", ReviewConfig().budget.overlap).value),
         )
         config = ReviewConfig(
             futures=int(p("futures", ReviewConfig.futures).value),
