@@ -383,7 +383,7 @@ def test_a_killed_node_is_restarted(system):
     assert ok["ok"]
 
 
-def start_scripted(tmp_path: Path, domain_offset: int) -> tuple[subprocess.Popen, dict, Path]:
+def start_scripted(tmp_path: Path, domain_offset: int, *extra: str) -> tuple[subprocess.Popen, dict, Path]:
     """The launcher with the scripted human, in its own ROS domain; returns (process, env, ledger)."""
     env = {
         **os.environ,
@@ -406,13 +406,16 @@ def start_scripted(tmp_path: Path, domain_offset: int) -> tuple[subprocess.Popen
         "4",
         "--futures",
         "4",
+        *extra,
     ]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
     return proc, env, ledger
 
 
 def test_scripted_review_loop_end_to_end(tmp_path):
-    proc, _, ledger = start_scripted(tmp_path, 50)
+    """The scripted human speaks first (--language: the true manual in other words on
+    /feedback/manual), then reviews the plan imagined under it, teaches, and approves."""
+    proc, _, ledger = start_scripted(tmp_path, 50, "--language")
     out, _ = proc.communicate(timeout=600)
     assert proc.returncode == 0, out[-3000:]
     assert "human finished" in out
@@ -425,7 +428,18 @@ def test_scripted_review_loop_end_to_end(tmp_path):
         timeout=60,
     )
     kinds = [line.split()[2] for line in shown.stdout.splitlines()[1:]]
-    assert kinds[0] == "manual" and kinds[1] == "plan" and "feedback" in kinds and kinds[-1] == "executed"
+    assert kinds[:4] == ["manual", "plan", "manual", "plan"] and "feedback" in kinds and kinds[-1] == "executed"
+    from lwm_models.ledger import Ledger
+
+    records = Ledger(ledger).history()
+    manuals = [r["payload"] for r in records if r["kind"] == "manual"]
+    assert [m["source"] for m in manuals[:2]] == ["env", "human"]
+    assert manuals[1]["descriptions"] != manuals[0]["descriptions"]
+    plans = [r["payload"] for r in records if r["kind"] == "plan"]
+    assert plans[1]["reason"] == "manual" and plans[1]["manual"] == manuals[1]["descriptions"]
+    assert plans[1]["manual_version"] == plans[0]["manual_version"] + 1
+    answered = {r["payload"]["plan_id"] for r in records if r["kind"] == "feedback"}
+    assert plans[0]["plan_id"] not in answered and plans[1]["plan_id"] in answered
 
 
 def test_simulator_killed_mid_review_the_review_resumes(tmp_path):
