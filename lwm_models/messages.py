@@ -15,6 +15,7 @@ import fastjsonschema
 from jsonschema import Draft202012Validator
 
 from .errors import LwmError
+from .messenger.observation import InvalidObservation, check_observation
 
 SCHEMA_DIR = Path(__file__).resolve().parent.parent / "msgs_json"
 VERSION = 1
@@ -46,14 +47,30 @@ def kinds() -> list[str]:
     return sorted(p.name.removesuffix(".schema.json") for p in SCHEMA_DIR.glob("*.schema.json"))
 
 
+REAL_STATES = {"state": ("observation",), "imagine_request": ("observation", "observations")}
+"""Where a kind carries observations that claim to be real game states (checked for meaning, not
+only shape). Imagined observations (plans, responses, label requests) are not: a world model may
+imagine the impossible, and a reviewer should see it."""
+
+
 def validate(kind: str, payload: Any) -> dict:
-    """Return the payload if it matches its schema; else raise MessageError naming the first problem."""
+    """Return the payload if it matches its schema and its real states are game states; else raise
+    MessageError naming the first problem."""
     try:
         validator(kind)(payload)
     except fastjsonschema.JsonSchemaValueException as e:
         where = "/".join(str(p) for p in (e.path or [])[1:]) or "(top level)"
         message = e.message.removeprefix(e.name or "data").strip()
         raise MessageError(f"{kind}: {where}: {message}") from None
+    for field in REAL_STATES.get(kind, ()):
+        if field not in payload:
+            continue
+        one = field == "observation"
+        for i, obs in enumerate([payload[field]] if one else payload[field]):
+            try:
+                check_observation(obs, field if one else f"{field}/{i}")
+            except InvalidObservation as exc:
+                raise MessageError(f"{kind}: {exc}") from None
     return payload
 
 

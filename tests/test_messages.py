@@ -52,3 +52,24 @@ def test_parse_and_dump_errors_name_the_problem():
     assert json.loads(text)["version"] == 1
     with pytest.raises(messages.MessageError, match="decision"):
         messages.dump("review_feedback", {"review_id": "r", "plan_id": 1, "decision": "maybe"})
+
+
+def test_real_states_must_be_game_states_and_imagined_ones_need_not():
+    """A state or an imagination start that no game can be in is refused with the reason; a plan
+    may show an impossible imagined state (the world model imagined it; the reviewer should see it)."""
+    state = copy.deepcopy(messages.schema("state")["examples"][0])
+    messages.validate("state", state)
+    entity = state["observation"][0]
+    state["observation"][1] = list(entity)  # the same entity twice
+    with pytest.raises(messages.MessageError, match="state: observation: the entity channels repeat an id"):
+        messages.parse("state", json.dumps(state))
+    request = {"version": 1, "observations": [state["observation"]], "n": 1}
+    with pytest.raises(messages.MessageError, match="observations/0: the entity channels repeat"):
+        messages.validate("imagine_request", request)
+    request["observations"][0][3] = [4, 1, 1]  # an entity id in the avatar channel
+    request["observations"][0][1] = [0, 0, 0]
+    with pytest.raises(messages.MessageError, match="avatar channel holds id 4"):
+        messages.validate("imagine_request", request)
+    plan = copy.deepcopy(messages.schema("plan")["examples"][0])
+    plan["observations"][-1][0] = list(plan["observations"][-1][1])  # an entity imagined twice
+    messages.validate("plan", plan)

@@ -19,11 +19,12 @@ from lwm_models.agent.policy import load_policy
 from lwm_models.agent.review import Ports, ReviewConfig, ReviewLoop
 from lwm_models.agent.reviewer import ScriptedReviewer
 from lwm_models.ledger import Ledger
+from lwm_models.messenger.observation import InvalidObservation, check_observation
 from lwm_models.messenger.session import GameSession
 from lwm_models.world.frozen_text import FrozenTextEncoder
 from lwm_models.world.imagine import imagine
 from lwm_models.world.shipped import SHIPPED, SHIPPED_POLICY
-from lwm_models.world.simulator import RequestError, Simulator, check_observation
+from lwm_models.world.simulator import RequestError, Simulator
 
 MANUAL = [
     "the plane is the deadly enemy and it chases you.",
@@ -90,7 +91,7 @@ def test_remote_and_local_imagination_agree(sim):
     ],
 )
 def test_states_that_are_no_game_state_are_refused(sim, obs, why):
-    with pytest.raises(RequestError, match=why):
+    with pytest.raises(InvalidObservation, match=why):
         check_observation(obs)
     answer = in_process(sim)({"version": 1, "observation": obs, "n": 1, "max_steps": 2})
     assert not answer["ok"] and why.split()[0] in answer["error"]

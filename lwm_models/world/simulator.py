@@ -27,7 +27,7 @@ import numpy as np
 
 from .. import messages
 from ..errors import LwmError
-from ..messenger.constants import AVATAR_NO_MESSAGE, AVATAR_WITH_MESSAGE, GRID
+from ..messenger.observation import check_observation
 from .checkpoint import load_checkpoint
 from .frozen_text import FrozenTextEncoder
 from .imagine import Rollout, imagine
@@ -40,32 +40,6 @@ MAX_TRAJECTORIES = 256  # per request or session: bounds the memory one client c
 
 class RequestError(LwmError, ValueError):
     """An imagine request the simulator cannot serve (a bad state, an unknown session, ...)."""
-
-
-def check_observation(obs: list | np.ndarray, where: str = "observation") -> np.ndarray:
-    """A compact observation [4, 3] that is a game state: the JSON Schema checks the shape; this
-    checks the meaning (entity ids 2..13 and distinct in channels 0-2, 15/16 or empty in the
-    avatar channel, cells on the grid, an empty channel all zero)."""
-    a = np.asarray(obs)
-    if a.shape != (4, 3) or not np.issubdtype(a.dtype, np.integer):
-        raise RequestError(f"{where}: a compact observation is 4 rows of [id, row, col] integers")
-    ids = a[:, 0]
-    for c in range(4):
-        i, r, col = (int(v) for v in a[c])
-        if i == 0:
-            if r or col:
-                raise RequestError(f"{where}: channel {c} is empty (id 0) but has a cell ({r}, {col})")
-            continue
-        if not (0 <= r < GRID and 0 <= col < GRID):
-            raise RequestError(f"{where}: channel {c} cell ({r}, {col}) is off the {GRID}x{GRID} grid")
-        if c < 3 and not 2 <= i <= 13:
-            raise RequestError(f"{where}: channel {c} holds id {i}; entity channels hold ids 2..13 or 0")
-        if c == 3 and i not in (AVATAR_NO_MESSAGE, AVATAR_WITH_MESSAGE):
-            raise RequestError(f"{where}: the avatar channel holds id {i}; it holds 15, 16 or 0")
-    present = [int(i) for i in ids[:3] if i]
-    if len(present) != len(set(present)):
-        raise RequestError(f"{where}: the entity channels repeat an id ({present}); a game has 3 distinct entities")
-    return a.astype(np.uint8)
 
 
 @dataclass
@@ -309,4 +283,4 @@ def serve_json(sim: Simulator, text: str) -> tuple[str, Exception | None]:
         return messages.dump("imagine_response", error_response(exc)), exc
 
 
-__all__ = ["RequestError", "Simulator", "check_observation", "error_response", "serve_json"]
+__all__ = ["RequestError", "Simulator", "error_response", "serve_json"]
