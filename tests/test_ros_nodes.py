@@ -209,7 +209,17 @@ def test_malformed_payloads_get_errors_and_the_nodes_keep_serving(system):
         for topic, payload in [
             ("/feedback/manual", '{"version": 1, "descriptions": ["just one"]}'),
             ("/env/manual", "{not json"),
-            ("/env/state", '{"version": 1, "t": "zero"}'),
+            # Schema-valid, but no game state: the same entity in two channels.
+            (
+                "/env/state",
+                json.dumps(
+                    {
+                        **latched(system, "/env/state"),
+                        "observation": [[2, 2, 7], [2, 7, 2], [11, 7, 7], [15, 2, 2]],
+                        "t": 0,
+                    }
+                ),
+            ),
             ("/planner/plan", "[]"),
             ("/planner/report", '{"version": 1}'),
             ("/lwm/status", '{"version": 1, "node": 3}'),
@@ -250,6 +260,7 @@ def test_malformed_payloads_get_errors_and_the_nodes_keep_serving(system):
         got = {(r["node"], r["where"]) for r in reports()}
         assert got >= expected, f"missing error reports: {sorted(expected - got)}"
         assert all(r["error"] for r in reports())
+        assert all("repeat an id" in r["error"] for r in reports() if r["where"] == "/env/state")
 
         # Everyone still serves: the services answer, the planner takes a corrected feedback
         # for the same plan and publishes the next plan, the human node prints it.

@@ -132,7 +132,7 @@ def act(
     generator: torch.Generator | None = None,
 ) -> np.ndarray:
     """Actions for a batch: sampled (training) or argmax (evaluation)."""
-    with torch.no_grad():
+    with torch.inference_mode():
         logits = policy(torch.from_numpy(np.ascontiguousarray(history)), id_values)
     if sample:
         return torch.multinomial(torch.softmax(logits, -1), 1, generator=generator).squeeze(1).numpy()
