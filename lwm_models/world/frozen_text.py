@@ -67,6 +67,12 @@ class FrozenTextEncoder:
         self._load()
         return int(self._model.config.hidden_size)
 
+    def load(self) -> FrozenTextEncoder:
+        """Load the model now rather than at the first text that is not cached (about 3-4 s): a
+        node that answers language feedback loads it at start."""
+        self._load()
+        return self
+
     def _load(self) -> None:
         if self._model is None:
             os.environ.setdefault("HF_HUB_OFFLINE", "1")

@@ -57,7 +57,9 @@ class PlannerNode(JsonNode):
             env_step=self._env(json_caller(self, self.create_client(Json, "/env/step"), None, call_timeout)),
             log=self.get_logger().info,
         )
-        self.loop = ReviewLoop(self.make_policy, FrozenTextEncoder(), self.imaginer, ports, Ledger(ledger), config)
+        # The text model loads now, not on the first uncached description of a language feedback.
+        encoder = FrozenTextEncoder().load()
+        self.loop = ReviewLoop(self.make_policy, encoder, self.imaginer, ports, Ledger(ledger), config)
         self.json_subscription("/lwm/status", "status", self.loop.on_status, LATCHED)
         self.json_subscription("/env/state", "state", self.loop.on_state, LATCHED)
         self.json_subscription("/review/feedback", "review_feedback", self.loop.on_feedback, FEEDBACK)

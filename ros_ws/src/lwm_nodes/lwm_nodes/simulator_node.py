@@ -24,6 +24,10 @@ class SimulatorNode(JsonNode):
         self.follow_env = self.declare_parameter("follow_env_manual", True).value
         max_sessions = int(self.declare_parameter("max_sessions", 32).value)
         self.sim = Simulator(checkpoint or None, state_path=state or None, max_sessions=max_sessions)
+        if self.sim.encoder is not None:
+            # A new manual's first uncached text would otherwise load the text model (about 4 s
+            # of a language feedback's time to the revised plan, measured).
+            self.sim.encoder.load()
         self.publish_status = self.json_publisher("/lwm/status", "status", LATCHED)
         self.json_subscription("/feedback/manual", "manual", self.on_feedback, LATCHED)
         self.json_subscription("/env/manual", "manual", self.on_env_manual, LATCHED)
