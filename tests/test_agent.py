@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
+from game_fixtures import MANUAL
 
 from lwm_models.agent.agent import Correction, FeedbackError, PlanReviewAgent
 from lwm_models.agent.expert import expert_actions, role_ids
@@ -17,12 +18,6 @@ from lwm_models.messenger.engine import BatchedMessenger
 from lwm_models.world.frozen_text import FrozenTextEncoder
 from lwm_models.world.manual import manual_batch
 from lwm_models.world.registry import PRESETS, build_model
-
-MANUAL = [
-    "the plane is the deadly enemy and it chases you.",
-    "the ball has the secret message and runs away from you.",
-    "the robot is the goal and never moves.",
-]
 
 
 @pytest.fixture(scope="module")

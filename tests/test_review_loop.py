@@ -10,6 +10,7 @@ import threading
 import numpy as np
 import pytest
 import torch
+from game_fixtures import MANUAL, OBS
 
 from lwm_models import messages
 from lwm_models.agent.agent import FeedbackError
@@ -25,13 +26,6 @@ from lwm_models.world.frozen_text import FrozenTextEncoder
 from lwm_models.world.imagine import imagine
 from lwm_models.world.shipped import SHIPPED, SHIPPED_POLICY
 from lwm_models.world.simulator import RequestError, Simulator
-
-MANUAL = [
-    "the plane is the deadly enemy and it chases you.",
-    "the ball has the secret message and runs away from you.",
-    "the robot is the goal and never moves.",
-]
-OBS = [[2, 2, 7], [10, 7, 2], [11, 7, 7], [15, 2, 2]]
 
 
 @pytest.fixture(scope="module")

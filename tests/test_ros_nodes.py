@@ -14,17 +14,10 @@ import time
 from pathlib import Path
 
 import pytest
+from game_fixtures import MANUAL, OBS
 
 pytest.importorskip("rclpy")
 pytest.importorskip("lwm_interfaces")
-
-
-MANUAL = [
-    "the plane is the deadly enemy and it chases you.",
-    "the ball has the secret message and runs away from you.",
-    "the robot is the goal and never moves.",
-]
-OBS = [[2, 2, 7], [10, 7, 2], [11, 7, 7], [15, 2, 2]]
 
 
 @pytest.fixture(scope="module")

@@ -185,13 +185,19 @@ def start_observations(game: GameSpec, seed: int = 0) -> np.ndarray:
 def imagined_states(im: Imagination, max_steps: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Every state with a next action in imagined trajectories, step by step: histories
     [m, 3, 4, 3], observations [m, 4, 3], their step index (0 = the start) and trajectory."""
+    return _states_with_actions(im.observations, im.lengths, max_steps)
+
+
+def _states_with_actions(
+    observations: np.ndarray, lengths: np.ndarray, max_steps: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     hist, obs, steps, traj = [], [], [], []
     for t in range(1, max_steps + 1):
-        alive = np.flatnonzero(im.lengths > t)  # trajectories still running at step t-1
+        alive = np.flatnonzero(lengths > t)  # trajectories still running at step t-1
         if len(alive) == 0:
             break
-        hist.append(stack_history(im.observations[alive, :t]))
-        obs.append(im.observations[alive, t - 1])
+        hist.append(stack_history(observations[alive, :t]))
+        obs.append(observations[alive, t - 1])
         steps.append(np.full(len(alive), t - 1))
         traj.append(alive)
     return np.concatenate(hist), np.concatenate(obs), np.concatenate(steps), np.concatenate(traj)
@@ -207,14 +213,14 @@ def labelled_states(
     """Histories [m, 3, 4, 3] of every state with a next action in imagined trajectories, and their
     labels: labeller(observations [n, 4, 3], t), called once per step, or the trajectories' own
     `actions` (actions[:, t] is taken in the state at t-1)."""
-    hist, labels = [], []
-    for t in range(1, max_steps + 1):
-        alive = np.flatnonzero(lengths > t)  # trajectories still running at step t-1
-        if len(alive) == 0:
-            break
-        hist.append(stack_history(observations[alive, :t]))
-        labels.append(actions[alive, t] if labeller is None else labeller(observations[alive, t - 1], t))
-    return np.concatenate(hist), np.concatenate(labels).astype(np.int64)
+    hist, obs, steps, traj = _states_with_actions(observations, lengths, max_steps)
+    if labeller is None:
+        return hist, actions[traj, steps + 1].astype(np.int64)
+    labels = np.empty(len(obs), dtype=np.int64)
+    for t in np.unique(steps):  # states come step by step: one labeller call per step
+        at = np.flatnonzero(steps == t)
+        labels[at] = labeller(obs[at], int(t) + 1)
+    return hist, labels
 
 
 RoundLabeller = Callable[[Imagination, int], tuple[np.ndarray, np.ndarray]]

@@ -42,6 +42,8 @@ from .imaginer import Unavailable
 from .learning import Budget, LabelledSet, imagined_states
 from .policy import EmmaPolicy
 
+MAX_EARLY = 100  # feedback and labels kept while no review is open (a restarted planner)
+
 
 @dataclass
 class ReviewConfig:
@@ -179,11 +181,9 @@ class ReviewLoop:
 
     def on_feedback(self, msg: dict) -> None:
         with self.lock:
-            r = self.review
-            if r is None and len(self.early) < 100:
-                # A restarted planner gets the kept feedback before its review is rebuilt: keep it.
-                self.early.append((self.on_feedback, msg))
+            if self._keep_early(self.on_feedback, msg):
                 return
+            r = self.review
             if r is None or msg["review_id"] != r.review_id:
                 current = None if r is None else r.review_id
                 raise FeedbackError(f"feedback for review {msg['review_id']!r}; the open review is {current!r}")
@@ -207,10 +207,9 @@ class ReviewLoop:
 
     def on_labels(self, msg: dict) -> None:
         with self.lock:
-            r = self.review
-            if r is None and len(self.early) < 100:
-                self.early.append((self.on_labels, msg))
+            if self._keep_early(self.on_labels, msg):
                 return
+            r = self.review
             if r is None or msg["review_id"] != r.review_id:
                 raise FeedbackError(f"labels for review {msg['review_id']!r}, which is not open")
             req = r.request
@@ -231,6 +230,14 @@ class ReviewLoop:
             r.labels = (np.asarray(states, dtype=np.int64), np.asarray(actions, dtype=np.int64))
             r.request = None
             r.labels_in.set()
+
+    def _keep_early(self, handler: Callable[[dict], None], msg: dict) -> bool:
+        """A restarted planner gets the kept feedback and labels before its review is rebuilt:
+        keep them (up to MAX_EARLY) for the review to take when it opens."""
+        if self.review is None and len(self.early) < MAX_EARLY:
+            self.early.append((handler, msg))
+            return True
+        return False
 
     def close(self) -> None:
         self.closing.set()

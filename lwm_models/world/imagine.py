@@ -255,10 +255,7 @@ def imagine(
     """
     if (actions is None) == (policy is None):
         raise ValueError("give either an action sequence or a policy")
-    if max_steps < 1:
-        raise ValueError(f"max_steps must be >= 1, got {max_steps}")
-    _check_inputs(first_obs, n)
-    if actions is not None:
+    if actions is not None:  # the rest (max_steps, first observations) Rollout checks
         actions = np.asarray(actions)
         if actions.ndim == 1:
             actions = np.broadcast_to(actions, (n, actions.shape[0]))

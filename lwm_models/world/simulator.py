@@ -27,7 +27,6 @@ import numpy as np
 
 from .. import messages
 from ..errors import LwmError
-from ..messenger.observation import check_observation
 from .checkpoint import load_checkpoint
 from .frozen_text import FrozenTextEncoder
 from .imagine import Rollout, imagine
@@ -142,7 +141,8 @@ class Simulator:
 
     # ------------------------------------------------------------------ requests
     def handle(self, request: dict) -> dict:
-        """The response to a schema-valid imagine request; raises LwmError for one it cannot serve."""
+        """The response to an imagine request that messages.validate accepted (schema and real start
+        states); raises LwmError for one it cannot serve."""
         op = request.get("op", "imagine")
         began = time.perf_counter()
         out = {"open": self._open, "step": self._step, "close": self._close}.get(op, self.imagine)(request)
@@ -158,9 +158,8 @@ class Simulator:
 
     @staticmethod
     def _starts(request: dict) -> np.ndarray:
-        if "observations" in request:
-            return np.stack([check_observation(o, f"observations/{i}") for i, o in enumerate(request["observations"])])
-        return check_observation(request["observation"])[None]
+        """[k, 4, 3]: the request's start observations (game states: messages.validate checked them)."""
+        return np.asarray(request["observations"] if "observations" in request else [request["observation"]], np.uint8)
 
     def imagine(self, request: dict) -> dict:
         """One-shot batched imagination (op `imagine`)."""
