@@ -1,7 +1,10 @@
 #!/usr/bin/env bash
 # Pilot for the long world-model training (issue 10): EMMA-LWM recipes compared at equal time.
-# Each variant trains for --max-minutes (default 40) on ONE thread, one variant after another
-# (never two at once), into runs/pilot-<name>/ (metrics.jsonl, log, cmd.txt, time.txt).
+# Each variant trains for a budget of CPU minutes (default 40) on ONE thread, one variant after
+# another (never two at once), into runs/pilot-<name>/ (metrics.jsonl, log, cmd.txt, time.txt).
+# CPU time, not wall-clock, so that work in the foreground on the other core does not shorten a
+# variant; the budget counts over chunks, so a variant cut off by the end of a session resumes
+# exactly where its last checkpoint left it (`lwm train --cpu-budget-minutes`).
 #
 # Measured on this machine (AMD EPYC, AVX2 only, no AVX512-BF16/AMX; PyTorch 2.13.0+cpu, whose
 # oneDNN bf16 path is unavailable here) with the shipped recipe, small preset, 1 thread:
@@ -25,12 +28,14 @@
 #   seed1      base with seed 1 (how far two seeds differ: the noise floor of the comparison)
 #   bf16       base with bf16 autocast, i.e. the shipped recipe (not in the default list)
 #
-# A variant with a DONE marker is skipped; a variant left unfinished (no DONE) is moved aside to
-# runs/pilot-<name>.partial-<time> and started again, so that every variant gets one uninterrupted
-# budget (resuming would restart the --max-minutes clock).
+# A variant with a DONE marker is skipped; a variant left unfinished (no DONE) resumes.
+# The code that trains is that of the checkout this script lives in (python -m from its root), so
+# the pilot can run from a worktree of a fixed commit while the main checkout changes:
+#   git worktree add runs/code-pilot <commit>; ln -s ../../{.venv,data,runs} runs/code-pilot/
+#   nohup runs/code-pilot/scripts/pilot.sh > runs/pilot.log 2>&1 &
 #
 # Usage: scripts/pilot.sh [variant ...]     (default: base mha attndrop lr1e-3 seed1)
-#   env: DATA (data/human), MINUTES (40), STEPS (14400), EVAL_EVERY (250), EVAL_EPISODES (500)
+#   env: DATA (data/human), MINUTES (40 CPU minutes), STEPS (14400), EVAL_EVERY (250), EVAL_EPISODES (500)
 # Progress: .venv/bin/python scripts/pilot_report.py; runs/pilot.log; runs/pilot-*/log
 # While it runs, change this file only by replacing it (write a copy, then mv): bash reads a
 # running script from its file as it goes.
@@ -46,7 +51,7 @@ ALL=(base mha attndrop lr1e-3 seed1)
 OPTIONAL=(bf16)
 
 common=(--kind emma --preset small --steps "$STEPS" --lr 5e-4 --warmup 300 --cosine --threads 1
-        --eval-every "$EVAL_EVERY" --eval-episodes "$EVAL_EPISODES" --max-minutes "$MINUTES" --no-progress)
+        --eval-every "$EVAL_EVERY" --eval-episodes "$EVAL_EPISODES" --cpu-budget-minutes "$MINUTES" --no-progress)
 
 variant_args() {
     case "$1" in
@@ -77,17 +82,13 @@ for name in "${names[@]}"; do
         echo "$(date -Is) pilot: $name already done, skipped"
         continue
     fi
-    if [ -e "$out" ]; then
-        aside=$out.partial-$(date +%Y%m%d-%H%M%S)
-        mv "$out" "$aside"
-        echo "$(date -Is) pilot: $name was unfinished, moved to $aside"
-    fi
+    [ -e "$out/last" ] && echo "$(date -Is) pilot: $name was unfinished, resuming"
     mkdir -p "$out"
     # shellcheck disable=SC2206
-    cmd=(.venv/bin/lwm train --data "$DATA" --out "$out" "${common[@]}" $extra)
+    cmd=(.venv/bin/python -m lwm_models.cli.main train --data "$DATA" --out "$out" "${common[@]}" $extra)
     echo "${cmd[*]}" > "$out/cmd.txt"
-    echo "$(date -Is) pilot: start $name: ${cmd[*]}"
-    /usr/bin/time -v -o "$out/time.txt" "${cmd[@]}" > "$out/log" 2>&1
+    echo "$(date -Is) pilot: start $name at $(git rev-parse --short HEAD): ${cmd[*]}"
+    /usr/bin/time -v -a -o "$out/time.txt" "${cmd[@]}" >> "$out/log" 2>&1
     rc=$?
     if [ $rc -eq 0 ]; then
         date -Is > "$out/DONE"

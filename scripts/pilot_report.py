@@ -1,11 +1,12 @@
 #!/usr/bin/env python
 """Summarise the world-model pilot (scripts/pilot.sh): per variant, the steps done, the speed, and
-the NewAll-dev cross-entropy at equal wall-clock time and at equal steps; plots dev CE against
-time and against steps.
+the NewAll-dev cross-entropy at equal CPU time and at equal steps; plots dev CE against CPU time
+and against steps.
 
-Reads runs/pilot-*/metrics.jsonl (partial runs are fine). Times are wall-clock seconds since the
-run's training loop began (data loading excluded), evaluations included, as `--max-minutes`
-counts them; CE "at T minutes" is that of the last dev evaluation that had begun by T.
+Reads runs/pilot-*/metrics.jsonl (partial runs are fine). Times are the run's CPU seconds over
+all its chunks (data loading excluded, evaluations included), as `--cpu-budget-minutes` counts
+them; runs logged before CPU time was recorded fall back to wall-clock. CE "at T minutes" is that
+of the last dev evaluation that had begun by T.
 
 Usage: .venv/bin/python scripts/pilot_report.py [--runs runs] [--png results/pilot_dev_ce.png]
        [--minutes 10 20 30 40] [--steps 250 500 750 1000 1250]
@@ -32,9 +33,11 @@ def load(path: Path) -> tuple[list[dict], list[dict]]:
             continue
         (dev if "dev_total" in entry else train).append(entry)
     # Dev lines of older runs carry no time: take that of the train line at the same step.
-    when = {e["step"]: e["elapsed_s"] for e in train if "elapsed_s" in e}
+    when = {e["step"]: e.get("cpu_s", e.get("elapsed_s")) for e in train}
+    for e in train:
+        e["t"] = e.get("cpu_s", e.get("elapsed_s", math.nan))
     for e in dev:
-        e.setdefault("elapsed_s", when.get(e["step"], math.nan))
+        e["t"] = e.get("cpu_s", e.get("elapsed_s", when.get(e["step"], math.nan)))
     # The final evaluation can be recorded twice (time budget and last step): keep the first.
     seen, unique = set(), []
     for e in dev:
@@ -58,7 +61,7 @@ def speed(train: list[dict], dev_steps: set[int]) -> tuple[float, float]:
 
 
 def at_minutes(dev: list[dict], minutes: float) -> dict | None:
-    began = [e for e in dev if e["elapsed_s"] <= 60 * minutes]
+    began = [e for e in dev if e["t"] <= 60 * minutes]
     return began[-1] if began else None
 
 
@@ -97,7 +100,7 @@ def main() -> int:
     print(f"{'variant':<10} {'status':<11} {'steps':>6} {'min':>6} {'s/step':>7} {'cpu/step':>8} {'eval_s':>6}  {mins}")
     for name, (run, train, dev) in data.items():
         steps = max([e["step"] for e in train + dev], default=0)
-        minutes = max([e.get("elapsed_s", 0) for e in train] + [0]) / 60
+        minutes = max([e["t"] for e in train] + [0]) / 60
         wall, cpu = speed(train, {e["step"] for e in dev})
         evals = [e["eval_s"] for e in dev if "eval_s" in e]
         cells = []
@@ -109,7 +112,7 @@ def main() -> int:
             f"{name:<10} {status(run):<11} {steps:>6} {minutes:>6.1f} {fmt(wall, 3):>7} {fmt(cpu, 3):>8} "
             f"{fmt(mean_eval, 1):>6}  {' '.join(cells)}"
         )
-    print("  @T min: NewAll-dev total CE (step) of the last evaluation begun by T minutes of training")
+    print("  @T min: NewAll-dev total CE (step) of the last evaluation begun by T CPU minutes of training")
     print("  ('-' while a run has not trained that long yet)")
 
     print(f"\n{'variant':<10} " + " ".join(f"{'step ' + str(s):>11}" for s in args.steps) + f" {'best':>16}")
@@ -133,9 +136,9 @@ def main() -> int:
         for name, (_, _, dev) in data.items():
             if not dev:
                 continue
-            axes[0].plot([e["elapsed_s"] / 60 for e in dev], [e["dev_total"] for e in dev], marker=".", label=name)
+            axes[0].plot([e["t"] / 60 for e in dev], [e["dev_total"] for e in dev], marker=".", label=name)
             axes[1].plot([e["step"] for e in dev], [e["dev_total"] for e in dev], marker=".", label=name)
-        axes[0].set_xlabel("training wall-clock (min, 1 thread, evaluations included)")
+        axes[0].set_xlabel("training CPU time (min, 1 thread, evaluations included)")
         axes[1].set_xlabel("step")
         axes[0].set_ylabel("NewAll-dev total CE")
         for ax in axes:

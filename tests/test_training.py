@@ -65,6 +65,41 @@ def test_resuming_continues_exactly(tiny_data, tmp_path):
         torch.testing.assert_close(v, w, msg=k)
 
 
+def test_a_killed_chunk_resumes_exactly(tiny_data, tmp_path):
+    # A chunk killed after its last checkpoint leaves log lines past it, and possibly a half-done
+    # swap of last/: the next chunk cuts the log, finishes the swap and trains on as if never stopped.
+    train(args(tiny_data, tmp_path / "straight", steps=8))
+    run = tmp_path / "resumed"
+    first = train(args(tiny_data, run, steps=4))
+    with open(run / "metrics.jsonl", "a") as f:
+        f.write(json.dumps({"step": 6, "loss": 1.0}) + "\n" + '{"step": 7, "lo')
+    (run / "last").rename(run / "last.old")
+    (run / "last.new").mkdir()
+    (run / "last.new" / "config.json").write_text("{")
+    result = train(args(tiny_data, run, steps=8))
+    a, _ = load_checkpoint(tmp_path / "straight" / "last")
+    b, _ = load_checkpoint(run / "last")
+    for (k, v), (_, w) in zip(a.state_dict().items(), b.state_dict().items()):
+        torch.testing.assert_close(v, w, msg=k)
+    assert not (run / "last.old").exists() and not (run / "last.new").exists()
+    lines = [json.loads(line) for line in (run / "metrics.jsonl").read_text().splitlines()]
+    assert [e["step"] for e in lines] == [4, 8]
+    # The run's clock goes on from the first chunk's.
+    clock = json.loads((run / "last" / "train_state.json").read_text())["clock"]
+    assert first["cpu_s"] < clock["cpu_s"] <= result["cpu_s"]
+    assert lines[0]["cpu_s"] <= round(first["cpu_s"], 1) <= lines[1]["cpu_s"]
+
+
+def test_cpu_budget_counts_every_chunk(tiny_data, tmp_path):
+    run = tmp_path / "run"
+    first = train(args(tiny_data, run, steps=100, cpu_budget_minutes=1e-9))
+    assert first["step"] == 1 and first["stopped"] == "CPU budget"
+    again = train(args(tiny_data, run, steps=100, cpu_budget_minutes=1e-9))
+    assert again["step"] == 1 and again["stopped"] == "CPU budget"
+    more = train(args(tiny_data, run, steps=3, cpu_budget_minutes=None))
+    assert more["step"] == 3 and more["stopped"] == "steps"
+
+
 def test_decoder_overrides_reach_the_model(tiny_data, tmp_path):
     # --kv-heads and --attn-dropout replace the preset's values (recorded in the checkpoint config).
     train(args(tiny_data, tmp_path / "run", preset="small", steps=2, eval_every=2, kv_heads=4, attn_dropout=0.1))

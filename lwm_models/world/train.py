@@ -5,7 +5,10 @@ norm clipped at 10, batches of 32 segments starting at a random step of a random
 block context only, padding masked; the best checkpoint by NewAll-dev total loss.
 
 A run directory holds `metrics.jsonl`, `last/` (weights + optimizer state, for resuming) and
-`best/` (the best dev checkpoint). Running the same command again resumes from `last/`.
+`best/` (the best dev checkpoint). Running the same command again resumes from `last/` exactly
+(weights, optimizer moments, both random generators, the metrics log cut back to the resumed step,
+and the run's accumulated wall-clock and CPU time), so a long run can be trained in chunks:
+`--max-minutes` bounds one chunk, `--cpu-budget-minutes` the whole run.
 Under `torchrun` it trains with DistributedDataParallel (gloo on CPU, nccl on GPUs); each rank
 samples its own batches and rank 0 evaluates and writes.
 """
@@ -15,6 +18,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import shutil
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -57,7 +61,8 @@ class TrainArgs:
     threads: int | None = None  # torch threads; None leaves PyTorch's default
     tensorboard: bool = False
     progress: bool = True
-    max_minutes: float | None = None  # stop (after saving) when this wall-clock budget is spent
+    max_minutes: float | None = None  # stop this chunk (after saving) when it has run this many wall-clock minutes
+    cpu_budget_minutes: float | None = None  # stop the run when its CPU time over all chunks reaches this
 
 
 def _param_groups(model: nn.Module, weight_decay: float) -> list[dict]:
@@ -79,7 +84,13 @@ def _lr_at(step: int, args: TrainArgs) -> float:
 
 
 def _save_train_state(
-    path: Path, optimizer: torch.optim.Optimizer, model: nn.Module, step: int, rng: np.random.Generator, best: float
+    path: Path,
+    optimizer: torch.optim.Optimizer,
+    model: nn.Module,
+    step: int,
+    rng: np.random.Generator,
+    best: float,
+    clock: dict[str, float],
 ) -> None:
     """Optimizer moments by parameter name, in safetensors (no pickles), plus JSON bookkeeping."""
     names = {id(p): n for n, p in model.named_parameters()}
@@ -99,11 +110,40 @@ def _save_train_state(
         "step": step,
         "rng": rng.bit_generator.state,
         "best_dev": best,
+        "clock": clock,  # the run's wall-clock and CPU seconds over all chunks so far
         "torch_rng": torch.get_rng_state().tolist(),
     }
     tmp = path / "train_state.json.tmp"
     tmp.write_text(json.dumps(state))
     os.replace(tmp, path / "train_state.json")
+
+
+def _recover_last(last: Path) -> None:
+    """Finish an interrupted swap of `last/` (see `checkpoint` in `train`)."""
+    old = last.with_name(last.name + ".old")
+    if not last.exists() and old.is_dir():
+        os.replace(old, last)
+    elif old.exists():
+        shutil.rmtree(old)
+    new = last.with_name(last.name + ".new")
+    if new.exists():
+        shutil.rmtree(new)
+
+
+def _cut_metrics(path: Path, step: int) -> None:
+    """Drop the log lines written after the checkpoint a run resumes from: they are trained again."""
+    if not path.is_file():
+        return
+    kept = []
+    for line in path.read_text().splitlines():
+        try:
+            if json.loads(line)["step"] <= step:
+                kept.append(line)
+        except (json.JSONDecodeError, KeyError, TypeError):
+            continue  # a torn last line of a killed run
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text("".join(line + "\n" for line in kept))
+    os.replace(tmp, path)
 
 
 def _load_train_state(path: Path, optimizer: torch.optim.Optimizer, model: nn.Module) -> dict:
@@ -162,6 +202,7 @@ def train(args: TrainArgs, log=print) -> dict:
     overrides = {k: v for k, v in (("attn_dropout", args.attn_dropout), ("kv_heads", args.kv_heads)) if v is not None}
     if overrides:
         config = type(config)(type(config.decoder)(**{**asdict(config.decoder), **overrides}), config.text)
+    _recover_last(last)
     resuming = (last / "config.json").is_file() and (last / "train_state.json").is_file()
     if resuming:
         model, saved = load_checkpoint(last, kind=args.kind)
@@ -184,12 +225,18 @@ def train(args: TrainArgs, log=print) -> dict:
     optimizer = torch.optim.AdamW(_param_groups(model, args.weight_decay), lr=args.lr, betas=(0.9, 0.999))
     rng = np.random.default_rng([args.seed, rank])
     step, best = 0, float("inf")
+    clock = {"wall_s": 0.0, "cpu_s": 0.0}
     if resuming:
         state = _load_train_state(last, optimizer, model)
         step, best = state["step"], state["best_dev"]
+        clock = state.get("clock", clock)
         rng.bit_generator.state = state["rng"]
         if rank == 0:
-            log(f"resuming {args.kind} from step {step} (best dev {best:.4f})")
+            _cut_metrics(out / "metrics.jsonl", step)
+            log(
+                f"resuming {args.kind} from step {step} (best dev {best:.4f}; "
+                f"{clock['wall_s'] / 60:.1f} min, {clock['cpu_s'] / 60:.1f} CPU-min so far)"
+            )
     net: nn.Module = nn.parallel.DistributedDataParallel(model) if distributed else model
 
     meta = {
@@ -230,8 +277,18 @@ def train(args: TrainArgs, log=print) -> dict:
             if dev["total"] < best:
                 best = dev["total"]
                 save_checkpoint(model, best_dir, extra)
-        save_checkpoint(model, last, extra)
-        _save_train_state(last, optimizer, model, step, rng, best)
+        # Weights and optimizer state must come from the same step, even if the process is killed
+        # while writing: write a new directory, then swap it in (`_recover_last` finishes a swap).
+        new, old = last.with_name(last.name + ".new"), last.with_name(last.name + ".old")
+        if new.exists():
+            shutil.rmtree(new)
+        save_checkpoint(model, new, extra)
+        _save_train_state(new, optimizer, model, step, rng, best, elapsed())
+        if last.exists():
+            os.replace(last, old)
+        os.replace(new, last)
+        if old.exists():
+            shutil.rmtree(old)
 
     bar = None
     if rank == 0 and args.progress:
@@ -240,9 +297,21 @@ def train(args: TrainArgs, log=print) -> dict:
         bar = tqdm(total=args.steps, initial=step, unit="step", desc=f"train {args.kind}")
     began = time.perf_counter()
     cpu_began = time.process_time()  # this process's CPU time: comparable across runs sharing a machine
+
+    def elapsed() -> dict[str, float]:
+        """The run's time over all its chunks (this chunk's plus the resumed state's)."""
+        return {
+            "wall_s": clock["wall_s"] + time.perf_counter() - began,
+            "cpu_s": clock["cpu_s"] + time.process_time() - cpu_began,
+        }
+
     window: list[float] = []
     stop_reason = "steps"
-    while step < args.steps:
+    if args.cpu_budget_minutes is not None and clock["cpu_s"] >= 60 * args.cpu_budget_minutes:
+        step_limit, stop_reason = step, "CPU budget"  # spent by earlier chunks: nothing left to train
+    else:
+        step_limit = args.steps
+    while step < step_limit:
         lr = _lr_at(step, args)
         for g in optimizer.param_groups:
             g["lr"] = lr
@@ -268,23 +337,27 @@ def train(args: TrainArgs, log=print) -> dict:
                     "done": out_.done.item(),
                     "lr": lr,
                     "grad_norm": grad_norm,
-                    "elapsed_s": round(time.perf_counter() - began, 1),
-                    "cpu_s": round(time.process_time() - cpu_began, 1),
+                    **{k: round(v, 1) for k, v in zip(("elapsed_s", "cpu_s"), elapsed().values())},
                     "seed": args.seed,
                 }
             )
             window = []
-        out_of_time = args.max_minutes is not None and time.perf_counter() - began > 60 * args.max_minutes
+        chunk_over = args.max_minutes is not None and time.perf_counter() - began > 60 * args.max_minutes
+        budget_spent = args.cpu_budget_minutes is not None and elapsed()["cpu_s"] > 60 * args.cpu_budget_minutes
+        out_of_time = chunk_over or budget_spent
         if step % args.eval_every == 0 or step == args.steps or out_of_time:
             dev = None
             if rank == 0:
                 eval_began = time.perf_counter()
+                began_at = elapsed()
                 dev = evaluate_loss(model, dev_data, limit=args.eval_episodes, bf16=args.bf16)
                 record(
                     {
                         "step": step,
                         **{f"dev_{k}": v for k, v in dev.items()},
-                        "elapsed_s": round(eval_began - began, 1),  # wall-clock since the start, when this eval began
+                        # the run's time when this evaluation began
+                        "elapsed_s": round(began_at["wall_s"], 1),
+                        "cpu_s": round(began_at["cpu_s"], 1),
                         "eval_s": round(time.perf_counter() - eval_began, 1),
                         "seed": args.seed,
                     }
@@ -293,11 +366,11 @@ def train(args: TrainArgs, log=print) -> dict:
                     bar.write(f"step {step}: {args.eval_split} total {dev['total']:.4f} (obs {dev['obs']:.4f})")
             checkpoint(dev)
         if out_of_time:
-            stop_reason = "time budget"
+            stop_reason = "CPU budget" if budget_spent else "chunk time"
             break
     if bar:
         bar.close()
     if distributed:
         dist.barrier()
         dist.destroy_process_group()
-    return {"step": step, "best_dev": best, "stopped": stop_reason, "out": str(out)}
+    return {"step": step, "best_dev": best, "stopped": stop_reason, "out": str(out), **elapsed()}
