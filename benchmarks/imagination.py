@@ -20,10 +20,7 @@ from lwm_models.data.splits import load_split
 from lwm_models.messenger.engine import BatchedMessenger
 from lwm_models.text import DescriptionPools
 from lwm_models.world.checkpoint import load_checkpoint
-from lwm_models.world.frozen_text import FrozenTextEncoder
 from lwm_models.world.imagine import imagine
-from lwm_models.world.manual import manual_batch
-from lwm_models.world.registry import NEEDS_TEXT
 from lwm_models.world.shipped import shipped_checkpoint
 
 TARGET_S = 1.0
@@ -53,8 +50,8 @@ def main() -> None:
     engine.reset([game], [0])
     first = engine.compact_observation()[0]
     manual = DescriptionPools.generated().draw("newall-test", list(game.triples), np.random.default_rng(0))
-    encoder = FrozenTextEncoder() if NEEDS_TEXT[config["kind"]] else None
-    batch = manual_batch(config["kind"], manual, encoder, list(game.triples))
+    encoder = model.frozen_text_encoder()
+    batch = model.read_manual(manual, encoder, list(game.triples))
     print(
         f"model: {config['kind']} {config['config']['decoder']} ({config['parameters']:,} parameters), "
         f"torch threads {torch.get_num_threads()}"

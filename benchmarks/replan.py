@@ -23,12 +23,11 @@ from lwm_models.agent.agent import Correction, PlanReviewAgent
 from lwm_models.agent.expert import expert_actions, role_ids
 from lwm_models.agent.imaginer import LocalImaginer
 from lwm_models.agent.learning import Budget, evaluate_real, expert_labeller, expert_rounds, start_observations
-from lwm_models.agent.policy import EmmaPolicy, load_policy
+from lwm_models.agent.policy import EmmaPolicy, load_policy, policy_manual
 from lwm_models.data.dataset import TrajectoryDataset
 from lwm_models.messenger.engine import BatchedMessenger
 from lwm_models.world.checkpoint import load_checkpoint
 from lwm_models.world.frozen_text import FrozenTextEncoder
-from lwm_models.world.manual import manual_batch
 from lwm_models.world.shipped import SHIPPED, SHIPPED_POLICY
 
 TARGET_S = 60.0
@@ -69,15 +68,15 @@ def main() -> None:
             # The agent starts with a wrong manual (the descriptions in the wrong order): the
             # person's language feedback is the true one.
             # In process: the world model and its manual behind the same interface as the simulator.
-            imaginer = LocalImaginer(world, manual_batch(config["kind"], list(reversed(manual)), encoder))
+            imaginer = LocalImaginer(world, world.read_manual(list(reversed(manual)), encoder))
             agent = PlanReviewAgent(copy.deepcopy(warm), encoder, imaginer, list(reversed(manual)))
             starts = start_observations(game, int(g))
             plan = agent.make_plan(first, 1)
-            policy_manual = manual_batch("emma", manual, encoder)
-            returns["warm"].append(evaluate_real(agent.policy, game, policy_manual, 48, int(g)).mean)
+            reader_manual = policy_manual(manual, encoder)
+            returns["warm"].append(evaluate_real(agent.policy, game, reader_manual, 48, int(g)).mean)
 
             t = time.perf_counter()
-            imaginer.manual = manual_batch(config["kind"], manual, encoder)
+            imaginer.manual = world.read_manual(manual, encoder)
             agent.set_manual(manual)
             plan = agent.make_plan(first, 2)
             times["manual"].append(time.perf_counter() - t)
@@ -95,7 +94,7 @@ def main() -> None:
             agent.imitate(expert_rounds(expert_labeller(game, int(g))), starts, budget)
             agent.make_plan(first, 4)
             times["online_il"].append(time.perf_counter() - t)
-            returns["online_il"].append(evaluate_real(agent.policy, game, policy_manual, 48, int(g)).mean)
+            returns["online_il"].append(evaluate_real(agent.policy, game, reader_manual, 48, int(g)).mean)
         print(f"{kind}:")
         for name, ts in times.items():
             ok = "met" if max(ts) <= TARGET_S else "MISSED"

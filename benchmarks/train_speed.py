@@ -33,17 +33,16 @@ import json, sys, time
 from dataclasses import replace
 import numpy as np, torch
 from lwm_models.world.batches import SplitTokens
-from lwm_models.world.frozen_text import FrozenTextEncoder
-from lwm_models.world.registry import NEEDS_TEXT, PRESETS, build_model
-from lwm_models.world.emma import EmmaConfig
+from lwm_models.world.base import WorldModelConfig
+from lwm_models.world.registry import PRESETS, build_model
 from lwm_models.world.train import _param_groups
 a = json.loads(sys.argv[1])
 torch.set_num_threads(a["threads"])
 base = PRESETS[a["preset"]]
-cfg = EmmaConfig(replace(base.decoder, attn_dropout=a["attn_dropout"], kv_heads=a["kv_heads"]), base.text)
+cfg = WorldModelConfig(replace(base.decoder, attn_dropout=a["attn_dropout"], kv_heads=a["kv_heads"]), base.text)
 torch.manual_seed(0)
 model = build_model(a["kind"], cfg).train()
-data = SplitTokens(a["data"], "train", FrozenTextEncoder() if NEEDS_TEXT[a["kind"]] else None)
+data = SplitTokens(a["data"], "train", model.frozen_text_encoder(), model.route)
 opt = torch.optim.AdamW(_param_groups(model, 0.01), lr=1e-4)
 rng = np.random.default_rng(0)
 def step():

@@ -11,12 +11,11 @@ from lwm_models.agent.agent import Correction, FeedbackError, PlanReviewAgent
 from lwm_models.agent.expert import expert_actions, role_ids
 from lwm_models.agent.imaginer import LocalImaginer
 from lwm_models.agent.learning import Budget, evaluate_real, expert_labeller, labelled_states, start_observations
-from lwm_models.agent.policy import EmmaPolicy
+from lwm_models.agent.policy import EmmaPolicy, policy_manual
 from lwm_models.data.splits import load_split
 from lwm_models.messenger import rollout
 from lwm_models.messenger.engine import BatchedMessenger
 from lwm_models.world.frozen_text import FrozenTextEncoder
-from lwm_models.world.manual import manual_batch
 from lwm_models.world.registry import PRESETS, build_model
 
 
@@ -33,7 +32,7 @@ def make_agent(agent_parts) -> PlanReviewAgent:
     game, first, encoder = agent_parts
     torch.manual_seed(0)
     world = build_model("emma", PRESETS["tiny"]).eval()
-    imaginer = LocalImaginer(world, manual_batch("emma", MANUAL, encoder))
+    imaginer = LocalImaginer(world, world.read_manual(MANUAL, encoder))
     return PlanReviewAgent(EmmaPolicy(), encoder, imaginer, list(MANUAL), max_steps=6, futures=3)
 
 
@@ -75,7 +74,7 @@ def test_online_imitation_in_the_shipped_world_model_learns_the_expert():
     from lwm_models.agent.learning import online_imitation_with
 
     policy = load_policy(SHIPPED_POLICY)
-    manual = manual_batch("emma", MANUAL, encoder)
+    manual = policy_manual(MANUAL, encoder)
     losses = online_imitation_with(
         policy,
         world,
@@ -145,7 +144,7 @@ def test_online_imitation_and_real_evaluation(agent_parts):
     labels = expert_rounds(expert_labeller(game), agent.max_steps)
     losses = agent.imitate(labels, first, Budget(iterations=3, episodes=4, grad_steps=2))
     assert len(losses) == 3 and all(np.isfinite(losses))
-    result = evaluate_real(agent.policy, game, manual_batch("emma", MANUAL, encoder), episodes=48)
+    result = evaluate_real(agent.policy, game, policy_manual(MANUAL, encoder), episodes=48)
     assert result.returns.shape == (48,) and -1.0 <= result.mean <= 1.5
     lo, hi = result.interval()
     assert lo <= result.mean <= hi
@@ -226,7 +225,7 @@ def test_policy_sparse_first_convolution_matches_the_dense_grid():
 
     history = np.stack([stack_history(ro.observations[i : i + 1, :t])[0] for i in range(16) for t in (1, 3, 9)])
     history[0, :, 1] = history[0, :, 0]  # two entities in one cell: their vectors add
-    manual = manual_batch("emma", MANUAL, FrozenTextEncoder())
+    manual = policy_manual(MANUAL, FrozenTextEncoder())
     h = torch.from_numpy(history)
     id_values = policy.id_values(manual).expand(len(h), -1, -1)
     torch.testing.assert_close(policy(h, id_values), policy.forward_dense(h, id_values), rtol=1e-4, atol=1e-4)

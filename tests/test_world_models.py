@@ -104,7 +104,7 @@ def test_emma_reads_the_manual_and_observational_does_not():
     # The value projection starts at zero: an untrained EMMA-LWM ignores its manual...
     assert torch.allclose(emma(tokens, lengths, m1).loss, emma(tokens, lengths, m2).loss)
     with torch.no_grad():  # ...and reads it once that projection has learned anything.
-        torch.nn.init.normal_(emma.v_proj.weight, std=0.5)
+        torch.nn.init.normal_(emma.reader.v.weight, std=0.5)
     assert not torch.allclose(emma(tokens, lengths, m1).loss, emma(tokens, lengths, m2).loss)
     assert torch.allclose(obs(tokens, lengths, m1).loss, obs(tokens, lengths, m2).loss)
 

@@ -26,9 +26,9 @@ from ..errors import LwmError
 from ..messenger.constants import CORNERS, NUM_ACTIONS
 from ..world.frozen_text import FrozenTextEncoder
 from ..world.imagine import Imagination
-from ..world.manual import ManualError, manual_batch
+from ..world.manual import ManualError
 from .learning import Budget, LabelledSet, RoundLabeller, fit_labels, online_imitation
-from .policy import EmmaPolicy, act, stack_history
+from .policy import EmmaPolicy, act, policy_manual, stack_history
 
 
 class FeedbackError(LwmError, ValueError):
@@ -128,7 +128,7 @@ class PlanReviewAgent:
         if not isinstance(manual, (list, tuple)):
             raise FeedbackError("a manual is a list of 3 descriptions")
         try:
-            return manual_batch("emma", list(manual), self.encoder)
+            return policy_manual(list(manual), self.encoder)
         except ManualError as exc:
             raise FeedbackError(str(exc)) from None
 

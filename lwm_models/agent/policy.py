@@ -1,8 +1,9 @@
 """The EMMA policy (§4): it reads the manual the way EMMA-LWM does and acts on the grid.
 
-Each description gives a key and a value (attention pools over its frozen encoder tokens); every
-entity's id embedding queries the keys and the attended value is painted into the entity's cell.
-The avatar's cell gets the avatar's own embedding. The last 3 observations are stacked on the
+The frozen encoder's description tokens, projected to the policy's width, are read by
+`DescriptionAttention` (the module EMMA-LWM reads the manual with) with the policy's own id
+embeddings as queries; what an entity's id read is painted into the entity's cell. The avatar's
+cell gets the avatar's own embedding. The last 3 observations are stacked on the
 channel axis, then a small convolution and an MLP give the logits of the 5 actions. It samples in
 training and takes the argmax in evaluation.
 """
@@ -10,7 +11,7 @@ training and takes the argmax in evaluation.
 from __future__ import annotations
 
 import json
-import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -21,8 +22,9 @@ from torch import nn
 
 from ..errors import LwmError
 from ..messenger.constants import GRID, NUM_ACTIONS, NUM_IDS
-from ..world.base import ManualBatch
-from ..world.description_encoder import AttentionPool
+from ..world.description_attention import DescriptionAttention
+from ..world.frozen_text import FrozenTextEncoder
+from ..world.manual import ManualBatch, text_manual
 
 HISTORY = 3
 
@@ -43,11 +45,8 @@ class EmmaPolicy(nn.Module):
         super().__init__()
         self.config = c = config or PolicyConfig()
         self.text_proj = nn.Linear(c.feature_dim, c.embed)
-        self.key_pool = AttentionPool(c.embed)
-        self.value_pool = AttentionPool(c.embed)
         self.id_emb = nn.Embedding(NUM_IDS, c.embed)
-        self.q = nn.Linear(c.embed, c.embed)
-        self.k = nn.Linear(c.embed, c.embed)
+        self.reader = DescriptionAttention(c.embed, project_values=False)
         self.conv = nn.Sequential(
             nn.Conv2d(HISTORY * c.embed, c.conv, 2), nn.LeakyReLU(), nn.Conv2d(c.conv, c.conv, 2), nn.LeakyReLU()
         )
@@ -57,12 +56,7 @@ class EmmaPolicy(nn.Module):
 
     def id_values(self, manual: ManualBatch) -> torch.Tensor:
         """[B, 17, E]: what each id token reads from the manual (computed once per manual)."""
-        x = self.text_proj(manual.features)  # [B, 3, T, E]
-        keys = self.k(self.key_pool(x, manual.mask))
-        values = self.value_pool(x, manual.mask)
-        q = self.q(self.id_emb.weight)  # [17, E]
-        attn = torch.softmax(torch.einsum("ie,bde->bid", q, keys) / math.sqrt(keys.shape[-1]), dim=-1)
-        return torch.einsum("bid,bde->bie", attn, values)
+        return self.reader(self.text_proj(manual.features), manual.mask, self.id_emb.weight)
 
     def entity_vectors(self, history: torch.Tensor, id_values: torch.Tensor):
         """What is painted where: vectors [B, 3 frames, 4 channels, E] (entities: what their id read
@@ -113,6 +107,11 @@ class EmmaPolicy(nn.Module):
         grid.index_put_((bi[present], fi[present], rows[present], cols[present]), vec[present], accumulate=True)
         x = grid.permute(0, 1, 4, 2, 3).reshape(b, HISTORY * e, GRID, GRID)
         return self.mlp(self.conv(x).flatten(1))
+
+
+def policy_manual(descriptions: Sequence[str], encoder: FrozenTextEncoder) -> ManualBatch:
+    """A manual as the policy reads it: the frozen encoder's tokens of its three descriptions."""
+    return text_manual(descriptions, encoder)
 
 
 def stack_history(observations: np.ndarray) -> np.ndarray:

@@ -17,7 +17,6 @@ from ..messenger.spec import GameSpec
 from ..world.base import WorldModel
 from ..world.frozen_text import FrozenTextEncoder
 from ..world.imagine import imagine
-from ..world.manual import manual_batch
 from .expert import expert_policy
 from .learning import (
     Budget,
@@ -29,6 +28,7 @@ from .learning import (
     start_observations,
 )
 from .policy import EmmaPolicy
+from .policy import policy_manual as read_policy_manual
 
 
 def filtered_behaviour_cloning(
@@ -74,8 +74,8 @@ def run_game(
     """Learn in imagination for one game (from its 24 start observations) and evaluate in the real
     game."""
     starts = start_observations(game, seed)
-    world_manual = manual_batch(kind, manual, encoder, list(game.triples))
-    policy_manual = manual_batch("emma", manual, encoder)
+    world_manual = world.read_manual(manual, encoder, list(game.triples))
+    policy_manual = read_policy_manual(manual, encoder)
     policy = copy.deepcopy(warm)
     began, began_cpu = time.perf_counter(), time.process_time()
     if setting == "online_il":

@@ -1,5 +1,6 @@
-"""What every world-model family shares: token embeddings, the causal decoder, the output heads and
-the training loss. A family only decides how the manual conditions the decoder (`condition`):
+"""What every world-model family shares: its config, token embeddings, the causal decoder, the
+output heads and the training loss. A family declares what it reads of a manual (`reads_text`,
+`needs_parse`, `read_manual`) and decides how the manual conditions the decoder (`condition`):
 
 - an `id_table` [B, 17, H] whose row i is added to the embedding of every entity-channel id token
   equal to i (EMMA-LWM, OracleParse, GPTHard; Observational has none), and/or
@@ -11,15 +12,20 @@ gathered at each id token, in training and in imagination alike.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import ClassVar
 
 import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import nn
 
-from ..messenger.constants import NUM_IDS
+from ..messenger.constants import NUM_IDS, Triple
+from .description_encoder import TextConfig
+from .frozen_text import FrozenTextEncoder
 from .gpt import Block, DecoderConfig, KVCache, head, init_weights
+from .manual import ManualBatch, ManualError, text_manual
 from .tokens import (
     ACTION_VOCAB,
     BLOCK,
@@ -51,24 +57,15 @@ _ID_COLUMNS = {
 
 
 @dataclass
-class ManualBatch:
-    """The manuals of a batch, in the forms the families need.
+class WorldModelConfig:
+    """The sizes of a world model, whatever its kind.
 
-    features: [B, 3, T, F] frozen text-encoder token vectors of each description.
-    mask: [B, 3, T] True at real (non-padding) tokens.
-    parse: [B, 3, 3] long, per description the true (identity id, movement index, role index).
-    routed: [B, 3] long, per description the identity id an external parser assigned (GPTHard).
+    decoder: the causal decoder over the token sequence (shared by every kind).
+    text: the trainable description encoder (used by the kinds that read text).
     """
 
-    features: torch.Tensor | None = None
-    mask: torch.Tensor | None = None
-    parse: torch.Tensor | None = None
-    routed: torch.Tensor | None = None
-
-    def index(self, idx: torch.Tensor) -> ManualBatch:
-        return ManualBatch(
-            *(None if t is None else t[idx] for t in (self.features, self.mask, self.parse, self.routed))
-        )
+    decoder: DecoderConfig = field(default_factory=DecoderConfig)
+    text: TextConfig = field(default_factory=TextConfig)
 
 
 @dataclass
@@ -100,12 +97,20 @@ def _targets_layout(length: int) -> dict[int, np.ndarray]:
 
 
 class WorldModel(nn.Module):
-    """Base class: subclasses set `kind` and implement `condition(manual)`."""
+    """Base class: subclasses set `kind` (and `reads_text`, `needs_parse` if they do) and implement
+    `condition(manual)`."""
 
-    kind = "base"
+    kind: ClassVar[str] = "base"
+    reads_text: ClassVar[bool] = False  # conditions on the frozen text encoder's description vectors
+    needs_parse: ClassVar[bool] = False  # conditions on the true parse, which a person's manual lacks
+    # description -> identity id, for a kind that routes descriptions to entities (GPTHard)
+    route: ClassVar[Callable[[str], int] | None] = None
 
-    def __init__(self, decoder: DecoderConfig) -> None:
+    def __init__(self, config: WorldModelConfig, decoder: DecoderConfig | None = None) -> None:
+        """`decoder` replaces config.decoder where a kind needs a variant of it (Standard)."""
         super().__init__()
+        self.config = config
+        decoder = decoder or config.decoder
         self.decoder_config = decoder
         h = decoder.hidden
         self.tok_emb = nn.Embedding(_EMBED_ROWS, h)
@@ -121,7 +126,22 @@ class WorldModel(nn.Module):
     def _init(self) -> None:
         self.apply(init_weights)
 
-    # ------------------------------------------------------------------ conditioning
+    # ------------------------------------------------------------------ the manual
+    @classmethod
+    def frozen_text_encoder(cls) -> FrozenTextEncoder | None:
+        """The frozen encoder this kind's manuals go through, or None if it reads no text."""
+        return FrozenTextEncoder() if cls.reads_text else None
+
+    @classmethod
+    def read_manual(
+        cls, descriptions: Sequence[str], encoder: FrozenTextEncoder | None, parse: Sequence[Triple] | None = None
+    ) -> ManualBatch:
+        """A batch-of-one ManualBatch of a manual, in the form this kind reads (the true `parse`,
+        (identity, movement, role) per description, only where a kind needs it)."""
+        if cls.reads_text and encoder is None:
+            raise ManualError(f"a {cls.kind} model reads text: it needs a text encoder")
+        return text_manual(descriptions, encoder if cls.reads_text else None)
+
     def condition(self, manual: ManualBatch) -> Conditioning:
         raise NotImplementedError
 

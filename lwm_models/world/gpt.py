@@ -183,6 +183,13 @@ def init_weights(module: nn.Module) -> None:
         nn.init.zeros_(module.bias)
 
 
+def zero_init(linear: nn.Linear) -> None:
+    """Start a residual contribution at zero: EMMA-LWM's and GPTHard's manual values (the
+    measurement is in world/emma.py's docstring)."""
+    nn.init.zeros_(linear.weight)
+    nn.init.zeros_(linear.bias)
+
+
 def head(hidden: int, out: int) -> nn.Sequential:
     """An output head: Linear-ReLU-Linear."""
     return nn.Sequential(nn.Linear(hidden, hidden), nn.ReLU(), nn.Linear(hidden, out))

@@ -8,27 +8,40 @@ the id token of the identity it was routed to (summed if two are routed to the s
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import torch
 from torch import nn
 
-from ..messenger.constants import NUM_IDS
-from .base import Conditioning, ManualBatch, WorldModel
+from ..messenger.constants import NUM_IDS, Triple
+from ..text.parser import route_identity_id
+from .base import Conditioning, ManualBatch, WorldModel, WorldModelConfig
 from .description_encoder import AttentionPool, DescriptionEncoder
-from .emma import EmmaConfig, zero_init
+from .frozen_text import FrozenTextEncoder
+from .gpt import zero_init
 
 
 class GPTHardLWM(WorldModel):
     kind = "gpthard"
+    reads_text = True
+    route = staticmethod(route_identity_id)  # description -> identity id (0: no guess)
 
-    def __init__(self, config: EmmaConfig) -> None:
-        super().__init__(config.decoder)
-        self.config = config
+    def __init__(self, config: WorldModelConfig) -> None:
+        super().__init__(config)
         h = config.decoder.hidden
         self.text_encoder = DescriptionEncoder(config.text, h, config.decoder.dropout)
         self.value_pool = AttentionPool(h)
         self.v_proj = nn.Linear(h, h)
         self._init()
         zero_init(self.v_proj)  # as in EMMA-LWM: the routed values start at zero
+
+    @classmethod
+    def read_manual(
+        cls, descriptions: Sequence[str], encoder: FrozenTextEncoder | None, parse: Sequence[Triple] | None = None
+    ) -> ManualBatch:
+        batch = super().read_manual(descriptions, encoder)
+        batch.routed = torch.tensor([[cls.route(d) for d in descriptions]])
+        return batch
 
     def condition(self, manual: ManualBatch) -> Conditioning:
         if manual.features is None or manual.routed is None:

@@ -1,51 +1,61 @@
-"""Turn a manual (three descriptions, and the true parse when a skyline needs it) into the
-ManualBatch a world model reads. Used by imagination, the agent and the ROS simulator node."""
+"""A manual in the form the models read: `ManualBatch`, and the checks and text encoding every
+reader of a manual shares (each world-model kind adds what else it needs in `read_manual`; the
+policy reads the text alone)."""
 
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import torch
 
 from ..errors import LwmError
-from ..messenger.constants import IDENTITIES, MOVEMENTS, ROLES, Triple
-from .base import ManualBatch
-from .frozen_text import FrozenTextEncoder
-from .registry import NEEDS_TEXT
+
+if TYPE_CHECKING:
+    from .frozen_text import FrozenTextEncoder
 
 
 class ManualError(LwmError, ValueError):
-    """A manual that a world model cannot read (wrong count, empty text, missing parse)."""
+    """A manual that a model cannot read (wrong count, empty text, missing parse)."""
 
 
-def manual_batch(
-    kind: str,
-    descriptions: Sequence[str],
-    encoder: FrozenTextEncoder | None,
-    parse: Sequence[Triple] | None = None,
-) -> ManualBatch:
-    """A batch-of-one ManualBatch for a model of `kind`."""
+@dataclass
+class ManualBatch:
+    """The manuals of a batch, in the forms the families need.
+
+    features: [B, 3, T, F] frozen text-encoder token vectors of each description.
+    mask: [B, 3, T] True at real (non-padding) tokens.
+    parse: [B, 3, 3] long, per description the true (identity id, movement index, role index).
+    routed: [B, 3] long, per description the identity id an external parser assigned (GPTHard).
+    """
+
+    features: torch.Tensor | None = None
+    mask: torch.Tensor | None = None
+    parse: torch.Tensor | None = None
+    routed: torch.Tensor | None = None
+
+    def index(self, idx: torch.Tensor) -> ManualBatch:
+        return ManualBatch(
+            *(None if t is None else t[idx] for t in (self.features, self.mask, self.parse, self.routed))
+        )
+
+
+def text_manual(descriptions: Sequence[str], encoder: FrozenTextEncoder | None) -> ManualBatch:
+    """A batch-of-one ManualBatch of three descriptions: their encoded tokens if `encoder` is
+    given, nothing else (a kind that reads more adds it)."""
     if len(descriptions) != 3:
         raise ManualError(f"a manual has exactly 3 descriptions, got {len(descriptions)}")
     for i, d in enumerate(descriptions):
         if not isinstance(d, str) or not d.strip():
             raise ManualError(f"description {i} is empty or not text")
-    features = mask = parse_t = routed = None
-    if NEEDS_TEXT.get(kind, False):
-        if encoder is None:
-            raise ManualError(f"a {kind} model needs a text encoder")
-        f, m = encoder.encode(list(descriptions))
-        features, mask = f[None], m[None]
-    if kind == "oracle":
-        if parse is None or len(parse) != 3:
-            raise ManualError("OracleParse needs the true (identity, movement, role) of each description")
-        try:
-            codes = [[IDENTITIES[i], MOVEMENTS.index(m), ROLES.index(r)] for i, m, r in parse]
-        except (KeyError, ValueError) as exc:
-            raise ManualError(f"bad parse {parse!r}: {exc}") from None
-        parse_t = torch.tensor([codes])
-    if kind == "gpthard":
-        from ..text.parser import route_identity_id
+    if encoder is None:
+        return ManualBatch()
+    features, mask = encoder.encode(list(descriptions))
+    return ManualBatch(features[None], mask[None])
 
-        routed = torch.tensor([[route_identity_id(d) for d in descriptions]])
-    return ManualBatch(features, mask, parse_t, routed)
+
+def manual_batch(kind, descriptions, encoder, parse=None):  # TEMP(refactor in progress)
+    from .registry import model_class
+
+    return model_class(kind).read_manual(descriptions, encoder, parse)

@@ -5,25 +5,42 @@ The embeddings of the three are summed and added to that entity's id token, in e
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import torch
 from torch import nn
 
-from ..messenger.constants import MOVEMENTS, NUM_IDS, ROLES
-from .base import Conditioning, ManualBatch, WorldModel
-from .emma import EmmaConfig
+from ..messenger.constants import IDENTITIES, MOVEMENTS, NUM_IDS, ROLES, Triple
+from .base import Conditioning, ManualBatch, WorldModel, WorldModelConfig
+from .frozen_text import FrozenTextEncoder
+from .manual import ManualError, text_manual
 
 
 class OracleParseLWM(WorldModel):
     kind = "oracle"
+    needs_parse = True
 
-    def __init__(self, config: EmmaConfig) -> None:
-        super().__init__(config.decoder)
-        self.config = config
+    def __init__(self, config: WorldModelConfig) -> None:
+        super().__init__(config)
         h = config.decoder.hidden
         self.identity_emb = nn.Embedding(NUM_IDS, h)
         self.movement_emb = nn.Embedding(len(MOVEMENTS), h)
         self.role_emb = nn.Embedding(len(ROLES), h)
         self._init()
+
+    @classmethod
+    def read_manual(
+        cls, descriptions: Sequence[str], encoder: FrozenTextEncoder | None, parse: Sequence[Triple] | None = None
+    ) -> ManualBatch:
+        batch = text_manual(descriptions, None)
+        if parse is None or len(parse) != 3:
+            raise ManualError("OracleParse needs the true (identity, movement, role) of each description")
+        try:
+            codes = [[IDENTITIES[i], MOVEMENTS.index(m), ROLES.index(r)] for i, m, r in parse]
+        except (KeyError, ValueError) as exc:
+            raise ManualError(f"bad parse {parse!r}: {exc}") from None
+        batch.parse = torch.tensor([codes])
+        return batch
 
     def condition(self, manual: ManualBatch) -> Conditioning:
         if manual.parse is None:

@@ -30,8 +30,6 @@ from ..errors import LwmError
 from .checkpoint import load_checkpoint
 from .frozen_text import FrozenTextEncoder
 from .imagine import Rollout, imagine
-from .manual import manual_batch
-from .registry import NEEDS_TEXT
 from .shipped import shipped_checkpoint
 
 MAX_TRAJECTORIES = 256  # per request or session: bounds the memory one client can take
@@ -60,9 +58,9 @@ class Simulator:
         self.checkpoint = Path(checkpoint) if checkpoint else shipped_checkpoint("emma")
         self.model, self.config = load_checkpoint(self.checkpoint)
         self.kind = self.config["kind"]
-        if self.kind in ("oracle",):
-            raise LwmError("the simulator serves models that read text manuals; OracleParse needs true parses")
-        self.encoder = encoder if encoder is not None else (FrozenTextEncoder() if NEEDS_TEXT[self.kind] else None)
+        if self.model.needs_parse:
+            raise LwmError(f"the simulator serves models that read manuals as text; {self.kind} needs true parses")
+        self.encoder = encoder if encoder is not None else self.model.frozen_text_encoder()
         self.manual: list[str] | None = None
         self.manual_version = 0
         self.manual_source = ""
@@ -85,7 +83,7 @@ class Simulator:
         (a latched manual is delivered again to a restarted node). A rejected manual changes nothing."""
         if self.manual == list(descriptions) and self._batch is not None:
             return self.manual_version, False
-        batch = manual_batch(self.kind, descriptions, self.encoder)
+        batch = self.model.read_manual(descriptions, self.encoder)
         self.manual, self._batch = list(descriptions), batch
         self.manual_version += 1
         self.manual_source = source
@@ -131,7 +129,7 @@ class Simulator:
         try:
             state = json.loads(self.state_path.read_text())
             if state.get("manual"):
-                self._batch = manual_batch(self.kind, state["manual"], self.encoder)
+                self._batch = self.model.read_manual(state["manual"], self.encoder)
                 self.manual = list(state["manual"])
             self.manual_version = int(state.get("version", 0))
             self.manual_source = str(state.get("source", ""))
@@ -151,7 +149,7 @@ class Simulator:
 
     def _manual_for(self, request: dict):
         if "manual" in request:
-            return manual_batch(self.kind, request["manual"], self.encoder), list(request["manual"]), 0
+            return self.model.read_manual(request["manual"], self.encoder), list(request["manual"]), 0
         if self._batch is None:
             raise RequestError("no manual yet: publish one on /feedback/manual or put one in the request")
         return self._batch, list(self.manual), self.manual_version

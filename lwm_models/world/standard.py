@@ -5,17 +5,16 @@ from __future__ import annotations
 
 from dataclasses import replace
 
-from .base import Conditioning, ManualBatch, WorldModel
+from .base import Conditioning, ManualBatch, WorldModel, WorldModelConfig
 from .description_encoder import DescriptionEncoder
-from .emma import EmmaConfig
 
 
 class StandardLWM(WorldModel):
     kind = "standard"
+    reads_text = True
 
-    def __init__(self, config: EmmaConfig) -> None:
-        super().__init__(replace(config.decoder, cross_attention=True))
-        self.config = config
+    def __init__(self, config: WorldModelConfig) -> None:
+        super().__init__(config, replace(config.decoder, cross_attention=True))
         self.text_encoder = DescriptionEncoder(config.text, config.decoder.hidden, config.decoder.dropout)
         self._init()
 

@@ -20,7 +20,7 @@ import math
 import os
 import shutil
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -29,40 +29,59 @@ import torch.distributed as dist
 from safetensors.torch import load_file, save_file
 from torch import nn
 
+from ..errors import LwmError
 from .base import WorldModel
 from .batches import SplitTokens
 from .checkpoint import load_checkpoint, save_checkpoint
-from .frozen_text import FrozenTextEncoder
-from .registry import NEEDS_TEXT, PRESETS, build_model
+from .registry import PRESETS, build_model
 
 
 @dataclass
 class TrainArgs:
     """Arguments of a training run (all recorded in the run's metrics and checkpoints)."""
 
-    data: str  # dataset directory from `lwm data generate`
-    out: str  # run directory
-    kind: str = "emma"  # emma | observational | standard | gpthard | oracle
-    preset: str = "paper"  # paper | small | tiny
-    steps: int = 100_000  # optimizer steps in total (a resumed run continues to this)
-    batch: int = 32
-    lr: float = 1e-4
-    warmup: int = 0  # linear warm-up steps (0: the paper's constant lr)
-    cosine: bool = False  # cosine decay to 10% of lr after warm-up (a budget-run option)
-    weight_decay: float = 0.01
-    clip: float = 10.0
-    seed: int = 0
-    eval_every: int = 1000
-    eval_split: str = "newall-dev"
-    eval_episodes: int | None = None  # None: the whole eval split
-    bf16: bool = False  # bf16 autocast on CPU (speed option)
-    attn_dropout: float | None = None  # None: the preset's dropout (paper 0.1); 0 enables fused attention
-    kv_heads: int | None = None  # None: the preset's key/value heads (small: 1, multi-query); = heads: multi-head
-    threads: int | None = None  # torch threads; None leaves PyTorch's default
-    tensorboard: bool = False
-    progress: bool = True
-    max_minutes: float | None = None  # stop this chunk (after saving) when it has run this many wall-clock minutes
-    cpu_budget_minutes: float | None = None  # stop the run when its CPU time over all chunks reaches this
+    data: str = field(metadata={"help": "dataset directory from `lwm data generate`"})
+    out: str = field(metadata={"help": "run directory (checkpoints last/ and best/, metrics.jsonl)"})
+    kind: str = field(default="emma", metadata={"help": "world model kind"})
+    preset: str = field(default="paper", metadata={"help": "model size preset"})
+    steps: int = field(
+        default=100_000, metadata={"help": "optimizer steps in total (a resumed run continues to this)"}
+    )
+    batch: int = field(default=32, metadata={"help": "training segments (of random episodes) per optimizer step"})
+    lr: float = field(default=1e-4, metadata={"help": "AdamW learning rate"})
+    warmup: int = field(default=0, metadata={"help": "linear warm-up steps (0: the paper's constant lr)"})
+    cosine: bool = field(
+        default=False, metadata={"help": "cosine decay to 10% of lr after warm-up (a budget-run option)"}
+    )
+    weight_decay: float = field(default=0.01, metadata={"help": "AdamW weight decay of the Linear weights"})
+    clip: float = field(default=10.0, metadata={"help": "gradient-norm clipping threshold"})
+    seed: int = field(default=0, metadata={"help": "seeds the initialization and the sampling of batches"})
+    eval_every: int = field(default=1000, metadata={"help": "steps between dev evaluations and checkpoints"})
+    eval_split: str = field(default="newall-dev", metadata={"help": "split of the dev evaluation"})
+    eval_episodes: int | None = field(
+        default=None, metadata={"help": "episodes of each dev evaluation (default: the whole eval split)"}
+    )
+    bf16: bool = field(default=False, metadata={"help": "bf16 autocast on CPU (speed option)"})
+    attn_dropout: float | None = field(
+        default=None,
+        metadata={"help": "attention dropout (default: the preset's, paper 0.1); 0 enables fused attention"},
+    )
+    kv_heads: int | None = field(
+        default=None,
+        metadata={
+            "help": "key/value heads (default: the preset's, small: 1, multi-query); as many as heads: multi-head"
+        },
+    )
+    threads: int | None = field(default=None, metadata={"help": "torch threads (default: PyTorch's)"})
+    tensorboard: bool = field(default=False, metadata={"help": "also write TensorBoard logs to RUN/tb"})
+    progress: bool = field(default=True, metadata={"help": "show a progress bar"})
+    max_minutes: float | None = field(
+        default=None,
+        metadata={"help": "stop this chunk (after saving) when it has run this many wall-clock minutes"},
+    )
+    cpu_budget_minutes: float | None = field(
+        default=None, metadata={"help": "stop the run when its CPU time over all chunks reaches this many minutes"}
+    )
 
 
 def _param_groups(model: nn.Module, weight_decay: float) -> list[dict]:
@@ -194,7 +213,7 @@ def train(args: TrainArgs, log=print) -> dict:
     if args.threads:
         torch.set_num_threads(args.threads)
     if args.preset not in PRESETS:
-        raise ValueError(f"unknown preset {args.preset!r}; known: {list(PRESETS)}")
+        raise LwmError(f"unknown preset {args.preset!r}; known: {', '.join(PRESETS)}")
     out = Path(args.out)
     last, best_dir = out / "last", out / "best"
 
@@ -207,18 +226,14 @@ def train(args: TrainArgs, log=print) -> dict:
     if resuming:
         model, saved = load_checkpoint(last, kind=args.kind)
         if saved.get("preset") != args.preset:
-            raise ValueError(f"{last} was trained with preset {saved.get('preset')!r}, not {args.preset!r}")
+            raise LwmError(f"{last} was trained with preset {saved.get('preset')!r}, not {args.preset!r}")
     else:
         torch.manual_seed(args.seed)
         model = build_model(args.kind, config)
     model.train()
 
-    encoder = FrozenTextEncoder() if NEEDS_TEXT[args.kind] else None
-    router = None
-    if args.kind == "gpthard":
-        from ..text.parser import route_identity_id
-
-        router = route_identity_id
+    encoder = model.frozen_text_encoder()
+    router = model.route
     train_data = SplitTokens(args.data, "train", encoder, router)
     dev_data = SplitTokens(args.data, args.eval_split, encoder, router) if rank == 0 else None
 
