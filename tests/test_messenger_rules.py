@@ -15,14 +15,17 @@ from lwm_models.messenger.constants import (
     IDENTITIES,
     STARTS,
 )
+from lwm_models.text import DescriptionPools
 
 UP, DOWN, LEFT, RIGHT, STAY = range(5)
 ENEMY, MESSAGE, GOAL = range(3)
 
 
-def make_env(enemy="chaser", message="immovable", goal="immovable", max_steps=32, seed=0) -> MessengerEnv:
+def make_env(
+    enemy="chaser", message="immovable", goal="immovable", max_steps=32, seed=0, pools=None
+) -> MessengerEnv:
     spec = GameSpec.from_triples([("dog", enemy, "enemy"), ("queen", message, "message"), ("ball", goal, "goal")])
-    env = MessengerEnv(spec, max_steps=max_steps)
+    env = MessengerEnv(spec, pools=pools, max_steps=max_steps)
     env.reset(seed=seed)
     return env
 
@@ -349,10 +352,13 @@ def test_reset_is_a_function_of_the_seed():
 
 
 def test_manual_has_three_descriptions_aligned_with_the_parse():
-    env = make_env()
+    env = make_env(pools=DescriptionPools.generated())
     _, info = env.reset(seed=3)
     assert len(info["manual"]) == 3 and all(isinstance(t, str) and t for t in info["manual"])
     assert sorted(map(tuple, info["parse"])) == sorted(env.spec.triples)
+    # Without a source of text the game still plays, and still tells the true parse.
+    _, info = make_env().reset(seed=3)
+    assert info["manual"] is None and sorted(map(tuple, info["parse"])) == sorted(env.spec.triples)
 
 
 @pytest.mark.parametrize("bad", [-1, 5, 2.0, "up", None, True])

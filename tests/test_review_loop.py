@@ -19,9 +19,9 @@ from lwm_models.agent.learning import Budget
 from lwm_models.agent.policy import load_policy
 from lwm_models.agent.review import Ports, ReviewConfig, ReviewLoop
 from lwm_models.agent.reviewer import ScriptedReviewer
+from lwm_models.data.session import GameSession
 from lwm_models.ledger import Ledger
 from lwm_models.messenger.observation import InvalidObservation, check_observation
-from lwm_models.messenger.session import GameSession
 from lwm_models.world.frozen_text import FrozenTextEncoder
 from lwm_models.world.imagine import imagine
 from lwm_models.world.shipped import SHIPPED, SHIPPED_POLICY

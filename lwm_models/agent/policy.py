@@ -10,18 +10,16 @@ training and takes the argmax in evaluation.
 
 from __future__ import annotations
 
-import json
-from collections.abc import Sequence
-from dataclasses import dataclass
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
 import torch
-from safetensors.torch import load_file, save_file
 from torch import nn
 
-from ..errors import LwmError
 from ..messenger.constants import GRID, NUM_ACTIONS, NUM_IDS
+from ..world.checkpoint import CheckpointError, load_into, publish, read_config, read_weights, write_weights
 from ..world.description_attention import DescriptionAttention
 from ..world.frozen_text import FrozenTextEncoder
 from ..world.manual import ManualBatch, text_manual
@@ -138,23 +136,31 @@ def act(
     return logits.argmax(-1).numpy()
 
 
-def save_policy(policy: EmmaPolicy, directory: str | Path, meta: dict | None = None) -> None:
-    directory = Path(directory)
-    directory.mkdir(parents=True, exist_ok=True)
-    save_file({k: v.contiguous() for k, v in policy.state_dict().items()}, str(directory / "policy.safetensors"))
-    (directory / "config.json").write_text(
-        json.dumps(
-            {"format": "lwm-emma-policy", "version": 1, "config": policy.config.__dict__, **(meta or {})}, indent=2
-        )
-    )
+POLICY_FORMAT = "lwm-emma-policy"
+
+
+def save_policy(
+    policy: EmmaPolicy, directory: str | Path, meta: dict | None = None, also: Callable[[Path], None] | None = None
+) -> Path:
+    """Write a policy in the checkpoint format of the world models (world/checkpoint.py); `also`
+    writes more files into the same directory, which appear together with the weights."""
+    config = {"format": POLICY_FORMAT, "version": 2, "config": asdict(policy.config), **(meta or {})}
+    state = {k: v.detach() for k, v in policy.state_dict().items()}
+
+    def fill(d: Path) -> None:
+        write_weights(d, state, config)
+        if also is not None:
+            also(d)
+
+    return publish(directory, fill)
 
 
 def load_policy(directory: str | Path) -> EmmaPolicy:
-    directory = Path(directory)
+    config = read_config(directory, POLICY_FORMAT)
+    state = read_weights(directory, config)
     try:
-        config = json.loads((directory / "config.json").read_text())
         policy = EmmaPolicy(PolicyConfig(**config["config"]))
-        policy.load_state_dict({k: v.float() for k, v in load_file(str(directory / "policy.safetensors")).items()})
-    except (OSError, KeyError, ValueError, RuntimeError) as exc:
-        raise LwmError(f"cannot load a policy from {directory}: {exc}") from None
+    except (KeyError, TypeError) as exc:
+        raise CheckpointError(f"{directory}: malformed policy config: {exc}") from None
+    load_into(policy, directory, state)
     return policy.eval()

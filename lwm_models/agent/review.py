@@ -33,15 +33,15 @@ from pathlib import Path
 import numpy as np
 from safetensors.numpy import load_file as load_arrays
 from safetensors.numpy import save_file as save_arrays
-from safetensors.torch import load_file, save_file
 
 from ..errors import LwmError
 from ..ledger import Ledger
 from .agent import Correction, FeedbackError, Plan, PlanReviewAgent, start_observations_like
 from .imaginer import Unavailable
 from .learning import Budget, LabelledSet, imagined_states
-from .policy import EmmaPolicy
+from .policy import EmmaPolicy, load_policy, save_policy
 
+LABELS = "labels.safetensors"  # beside a review's policy snapshot: the states labelled so far
 MAX_EARLY = 100  # feedback and labels kept while no review is open (a restarted planner)
 
 
@@ -552,20 +552,19 @@ class ReviewLoop:
 
     # ------------------------------------------------------------------ the policy on disk
     def _policy_path(self, r: Review) -> Path:
-        return self.policy_dir / (re.sub(r"[^A-Za-z0-9_.-]", "_", r.review_id) + ".safetensors")
+        return self.policy_dir / re.sub(r"[^A-Za-z0-9_.-]", "_", r.review_id)
 
     def _save_policy(self, r: Review, after: int) -> None:
-        """The policy and its labelled states, written atomically, so a restart resumes from them."""
+        """The policy and its labelled states, in one checkpoint, so a restart resumes from them."""
         path = self._policy_path(r)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_suffix(".tmp")
-        save_file({k: v.contiguous() for k, v in r.agent.policy.state_dict().items()}, str(tmp))
-        tmp.replace(path)
-        data = path.with_suffix(".labels")
-        if len(r.agent.labelled):
-            h, y = r.agent.labelled.arrays()
-            save_arrays({"history": h, "labels": y}, str(tmp))
-            tmp.replace(data)
+        labelled = r.agent.labelled
+
+        def labels(d: Path) -> None:
+            if len(labelled):
+                h, y = labelled.arrays()
+                save_arrays({"history": h, "labels": y}, str(d / LABELS))
+
+        save_policy(r.agent.policy, path, {"review_id": r.review_id, "after": after}, also=labels)
         self.ledger.record(
             r.review_id, "policy", {"path": str(path), "after": after, "labelled": len(r.agent.labelled)}
         )
@@ -592,9 +591,9 @@ class ReviewLoop:
                 saved = p
             elif kind == "report":
                 done = True
-        if saved is not None and Path(saved["path"]).is_file():
-            r.agent.policy.load_state_dict(load_file(saved["path"]))
-            data = Path(saved["path"]).with_suffix(".labels")
+        if saved is not None and Path(saved["path"]).is_dir():
+            r.agent.policy.load_state_dict(load_policy(saved["path"]).state_dict())
+            data = Path(saved["path"]) / LABELS
             r.agent.labelled = LabelledSet()
             if data.is_file():
                 arrays = load_arrays(str(data))

@@ -7,7 +7,8 @@ slot)`, which makes an episode a function of its seed alone.
 
 from __future__ import annotations
 
-from typing import Any
+from collections.abc import Sequence
+from typing import Protocol
 
 import numpy as np
 
@@ -44,13 +45,20 @@ def _on_board(p: tuple[int, int]) -> bool:
     return 0 <= p[0] <= HALF_MAX and 0 <= p[1] <= HALF_MAX
 
 
+class ManualSource(Protocol):
+    """Where a game's manual comes from (lwm_models.text.DescriptionPools): the game itself knows
+    no text, so that it stays the ground floor that text, data and models build on."""
+
+    def draw(self, split: str | None, triples: Sequence[Sequence[str]], rng: np.random.Generator) -> list[str]: ...
+
+
 class MessengerEnv:
     """A single Messenger stage-2 game.
 
     Args:
         spec: the three entities of the game.
-        pools: description pools (lwm_models.text.DescriptionPools) to draw the manual from;
-            None uses the project's generated descriptions.
+        pools: where the manual is drawn from (lwm_models.text.DescriptionPools); None: the
+            game has no manual (info["manual"] is None; the true parse is still given).
         split: which split's pool the manual is drawn from; None draws from every split's.
         max_steps: time limit in actions (the paper: 32).
 
@@ -61,16 +69,12 @@ class MessengerEnv:
     def __init__(
         self,
         spec: GameSpec,
-        pools: Any = None,
+        pools: ManualSource | None = None,
         split: str | None = None,
         max_steps: int = DEFAULT_MAX_STEPS,
     ) -> None:
         if max_steps < 1:
             raise ValueError(f"max_steps must be >= 1, got {max_steps}")
-        if pools is None:
-            from ..text import default_pools
-
-            pools = default_pools()
         self.spec = spec
         self.pools = pools
         self.split = split
@@ -172,7 +176,7 @@ class MessengerEnv:
         triples = list(self.spec.triples)
         order = generator.permutation(3)
         ordered = [triples[i] for i in order]
-        self.manual = list(self.pools.draw(self.split, ordered, generator))
+        self.manual = None if self.pools is None else list(self.pools.draw(self.split, ordered, generator))
         self.parse = ordered
 
     # ----------------------------------------------------------------- views
@@ -190,7 +194,7 @@ class MessengerEnv:
 
     def info(self) -> dict:
         return {
-            "manual": list(self.manual),
+            "manual": None if self.manual is None else list(self.manual),
             "parse": [list(t) for t in self.parse],
             "half_cell_positions": {
                 "avatar": self.avatar,

@@ -19,7 +19,6 @@ from .pools import (
     DescriptionPools,
     PoolError,
     allocate,
-    default_pools,
     receiving_splits,
     split_counts,
 )
@@ -39,7 +38,6 @@ __all__ = [
     "PoolError",
     "add_typos",
     "allocate",
-    "default_pools",
     "generate_descriptions",
     "load_description_file",
     "load_description_files",

@@ -203,9 +203,3 @@ class DescriptionPools:
         return {
             split: len({t for texts in by_triple.values() for t in texts}) for split, by_triple in self.pools.items()
         }
-
-
-@lru_cache(maxsize=1)
-def default_pools() -> DescriptionPools:
-    """The generated pools with seed 0, built once per process."""
-    return DescriptionPools.generated()

@@ -1,8 +1,10 @@
-"""World-model checkpoints: `model.safetensors` plus `config.json` in one directory.
+"""Checkpoints, one format for every trained network (world models and policies): a directory with
+`model.safetensors` and `config.json`.
 
-config.json records the model kind and sizes, the text encoder, the data, the training steps and
-seed, and the SHA-256 of the weights file, so a corrupt or truncated file is detected on load
-instead of being used.
+config.json records what the network is (`format`: lwm-world-model or lwm-emma-policy, its kind
+and sizes), how it was trained, and the SHA-256 of the weights file, so a corrupt or truncated
+file is detected on load instead of being used. A directory is built beside its place and swapped
+in whole (`publish`), so a reader never finds the weights of one save with the config of another.
 """
 
 from __future__ import annotations
@@ -10,6 +12,8 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import shutil
+from collections.abc import Callable
 from pathlib import Path
 
 import torch
@@ -21,6 +25,7 @@ from .registry import build_model, config_from_dict, config_to_dict
 
 FORMAT = "lwm-world-model"
 VERSION = 1
+WEIGHTS = "model.safetensors"
 
 
 class CheckpointError(LwmError):
@@ -35,34 +40,40 @@ def _sha256(path: Path) -> str:
     return h.hexdigest()
 
 
-def save_checkpoint(
-    model: WorldModel, directory: str | Path, meta: dict | None = None, dtype: torch.dtype | None = None
-) -> Path:
-    """Write the model's weights (optionally cast, e.g. fp16 for shipping) and config atomically."""
+def recover(directory: str | Path) -> None:
+    """Finish a `publish` that a killed process left half done."""
     directory = Path(directory)
-    directory.mkdir(parents=True, exist_ok=True)
-    state = {k: v.detach().to(dtype or v.dtype).contiguous() for k, v in model.state_dict().items()}
-    weights = directory / "model.safetensors"
-    tmp = directory / "model.safetensors.tmp"
-    save_file(state, str(tmp))
-    os.replace(tmp, weights)
-    config = {
-        "format": FORMAT,
-        "version": VERSION,
-        "kind": model.kind,
-        "config": config_to_dict(model.config),
-        "dtype": str(dtype or next(model.parameters()).dtype).replace("torch.", ""),
-        "parameters": sum(p.numel() for p in model.parameters()),
-        "sha256": _sha256(weights),
-        **(meta or {}),
-    }
-    tmp_cfg = directory / "config.json.tmp"
-    tmp_cfg.write_text(json.dumps(config, indent=2))
-    os.replace(tmp_cfg, directory / "config.json")
+    old, new = directory.with_name(directory.name + ".old"), directory.with_name(directory.name + ".new")
+    if not directory.exists() and old.is_dir():
+        os.replace(old, directory)
+    for leftover in (old, new):
+        if leftover.exists():
+            shutil.rmtree(leftover)
+
+
+def publish(directory: str | Path, fill: Callable[[Path], None]) -> Path:
+    """Build a directory with `fill(path)` beside `directory`, then swap it in."""
+    directory = Path(directory)
+    recover(directory)
+    new, old = directory.with_name(directory.name + ".new"), directory.with_name(directory.name + ".old")
+    new.mkdir(parents=True)
+    fill(new)
+    if directory.exists():
+        os.replace(directory, old)
+    os.replace(new, directory)
+    if old.exists():
+        shutil.rmtree(old)
     return directory
 
 
-def read_config(directory: str | Path) -> dict:
+def write_weights(directory: Path, state: dict[str, torch.Tensor], config: dict) -> None:
+    """The weights file and a config.json that carries its hash, into a directory being built."""
+    save_file({k: v.contiguous() for k, v in state.items()}, str(directory / WEIGHTS))
+    config = {**config, "sha256": _sha256(directory / WEIGHTS)}
+    (directory / "config.json").write_text(json.dumps(config, indent=2))
+
+
+def read_config(directory: str | Path, fmt: str = FORMAT) -> dict:
     directory = Path(directory)
     path = directory / "config.json"
     if not path.is_file():
@@ -71,9 +82,54 @@ def read_config(directory: str | Path) -> dict:
         config = json.loads(path.read_text())
     except json.JSONDecodeError as exc:
         raise CheckpointError(f"{path} is not valid JSON: {exc}") from None
-    if config.get("format") != FORMAT:
-        raise CheckpointError(f"{path}: not an {FORMAT} config (format={config.get('format')!r})")
+    if not isinstance(config, dict) or config.get("format") != fmt:
+        found = config.get("format") if isinstance(config, dict) else None
+        raise CheckpointError(f"{path}: not an {fmt} config (format={found!r})")
     return config
+
+
+def read_weights(directory: str | Path, config: dict) -> dict[str, torch.Tensor]:
+    """The weights of a checkpoint as float32, after checking them against the config's hash."""
+    weights = Path(directory) / WEIGHTS
+    if not weights.is_file():
+        raise CheckpointError(f"{directory}: {WEIGHTS} is missing")
+    if _sha256(weights) != config.get("sha256"):
+        raise CheckpointError(f"{weights} does not match the hash in config.json: corrupt or truncated")
+    try:
+        return {k: v.float() for k, v in load_file(str(weights)).items()}
+    except Exception as exc:  # safetensors raises its own error types for bad headers
+        raise CheckpointError(f"{weights} cannot be read: {exc}") from None
+
+
+def load_into(module: torch.nn.Module, directory: str | Path, state: dict[str, torch.Tensor]) -> None:
+    try:
+        module.load_state_dict(state)
+    except RuntimeError as exc:
+        raise CheckpointError(f"{directory}: {WEIGHTS} does not fit its config: {str(exc).splitlines()[0]}") from None
+
+
+def save_checkpoint(
+    model: WorldModel, directory: str | Path, meta: dict | None = None, dtype: torch.dtype | None = None
+) -> Path:
+    """Write the model's weights (optionally cast, e.g. fp16 for shipping) and config."""
+    return publish(directory, lambda d: write_checkpoint(model, d, meta, dtype))
+
+
+def write_checkpoint(
+    model: WorldModel, directory: Path, meta: dict | None = None, dtype: torch.dtype | None = None
+) -> None:
+    """A world model's checkpoint files, into a directory being built (see `publish`)."""
+    state = {k: v.detach().to(dtype or v.dtype) for k, v in model.state_dict().items()}
+    config = {
+        "format": FORMAT,
+        "version": VERSION,
+        "kind": model.kind,
+        "config": config_to_dict(model.config),
+        "dtype": str(dtype or next(model.parameters()).dtype).replace("torch.", ""),
+        "parameters": sum(p.numel() for p in model.parameters()),
+        **(meta or {}),
+    }
+    write_weights(directory, state, config)
 
 
 def load_checkpoint(directory: str | Path, kind: str | None = None) -> tuple[WorldModel, dict]:
@@ -82,21 +138,10 @@ def load_checkpoint(directory: str | Path, kind: str | None = None) -> tuple[Wor
     config = read_config(directory)
     if kind is not None and config.get("kind") != kind:
         raise CheckpointError(f"{directory} holds a {config.get('kind')!r} model, expected {kind!r}")
-    weights = directory / "model.safetensors"
-    if not weights.is_file():
-        raise CheckpointError(f"{directory}: model.safetensors is missing")
-    if config.get("sha256") and _sha256(weights) != config["sha256"]:
-        raise CheckpointError(f"{weights} does not match the hash in config.json: corrupt or truncated")
+    state = read_weights(directory, config)
     try:
         model = build_model(config["kind"], config_from_dict(config["config"]))
     except (KeyError, ValueError) as exc:
         raise CheckpointError(f"{directory}: {exc}") from None
-    try:
-        state = load_file(str(weights))
-    except Exception as exc:  # safetensors raises its own error types for bad headers
-        raise CheckpointError(f"{weights} cannot be read: {exc}") from None
-    try:
-        model.load_state_dict({k: v.float() for k, v in state.items()})
-    except RuntimeError as exc:
-        raise CheckpointError(f"{weights} does not fit its config: {str(exc).splitlines()[0]}") from None
+    load_into(model, directory, state)
     return model.eval(), config

@@ -18,7 +18,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import shutil
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -32,7 +31,7 @@ from torch import nn
 from ..errors import LwmError
 from .base import WorldModel
 from .batches import SplitTokens
-from .checkpoint import load_checkpoint, save_checkpoint
+from .checkpoint import load_checkpoint, publish, recover, save_checkpoint, write_checkpoint
 from .registry import PRESETS, build_model
 
 
@@ -44,9 +43,7 @@ class TrainArgs:
     out: str = field(metadata={"help": "run directory (checkpoints last/ and best/, metrics.jsonl)"})
     kind: str = field(default="emma", metadata={"help": "world model kind"})
     preset: str = field(default="paper", metadata={"help": "model size preset"})
-    steps: int = field(
-        default=100_000, metadata={"help": "optimizer steps in total (a resumed run continues to this)"}
-    )
+    steps: int = field(default=100_000, metadata={"help": "optimizer steps in total (a resumed run continues to this)"})
     batch: int = field(default=32, metadata={"help": "training segments (of random episodes) per optimizer step"})
     lr: float = field(default=1e-4, metadata={"help": "AdamW learning rate"})
     warmup: int = field(default=0, metadata={"help": "linear warm-up steps (0: the paper's constant lr)"})
@@ -111,7 +108,8 @@ def _save_train_state(
     best: float,
     clock: dict[str, float],
 ) -> None:
-    """Optimizer moments by parameter name, in safetensors (no pickles), plus JSON bookkeeping."""
+    """Optimizer moments by parameter name, in safetensors (no pickles), plus JSON bookkeeping,
+    into the run's next `last/` while it is being built."""
     names = {id(p): n for n, p in model.named_parameters()}
     tensors = {}
     for group in optimizer.param_groups:
@@ -122,9 +120,7 @@ def _save_train_state(
                 tensors[f"exp_avg/{n}"] = state["exp_avg"].contiguous()
                 tensors[f"exp_avg_sq/{n}"] = state["exp_avg_sq"].contiguous()
                 tensors[f"step/{n}"] = torch.as_tensor(state["step"], dtype=torch.float64).reshape(1)
-    tmp = path / "optimizer.safetensors.tmp"
-    save_file(tensors, str(tmp))
-    os.replace(tmp, path / "optimizer.safetensors")
+    save_file(tensors, str(path / "optimizer.safetensors"))
     state = {
         "step": step,
         "rng": rng.bit_generator.state,
@@ -132,21 +128,7 @@ def _save_train_state(
         "clock": clock,  # the run's wall-clock and CPU seconds over all chunks so far
         "torch_rng": torch.get_rng_state().tolist(),
     }
-    tmp = path / "train_state.json.tmp"
-    tmp.write_text(json.dumps(state))
-    os.replace(tmp, path / "train_state.json")
-
-
-def _recover_last(last: Path) -> None:
-    """Finish an interrupted swap of `last/` (see `checkpoint` in `train`)."""
-    old = last.with_name(last.name + ".old")
-    if not last.exists() and old.is_dir():
-        os.replace(old, last)
-    elif old.exists():
-        shutil.rmtree(old)
-    new = last.with_name(last.name + ".new")
-    if new.exists():
-        shutil.rmtree(new)
+    (path / "train_state.json").write_text(json.dumps(state))
 
 
 def _cut_metrics(path: Path, step: int) -> None:
@@ -221,7 +203,7 @@ def train(args: TrainArgs, log=print) -> dict:
     overrides = {k: v for k, v in (("attn_dropout", args.attn_dropout), ("kv_heads", args.kv_heads)) if v is not None}
     if overrides:
         config = type(config)(type(config.decoder)(**{**asdict(config.decoder), **overrides}), config.text)
-    _recover_last(last)
+    recover(last)
     resuming = (last / "config.json").is_file() and (last / "train_state.json").is_file()
     if resuming:
         model, saved = load_checkpoint(last, kind=args.kind)
@@ -292,18 +274,14 @@ def train(args: TrainArgs, log=print) -> dict:
             if dev["total"] < best:
                 best = dev["total"]
                 save_checkpoint(model, best_dir, extra)
+
         # Weights and optimizer state must come from the same step, even if the process is killed
-        # while writing: write a new directory, then swap it in (`_recover_last` finishes a swap).
-        new, old = last.with_name(last.name + ".new"), last.with_name(last.name + ".old")
-        if new.exists():
-            shutil.rmtree(new)
-        save_checkpoint(model, new, extra)
-        _save_train_state(new, optimizer, model, step, rng, best, elapsed())
-        if last.exists():
-            os.replace(last, old)
-        os.replace(new, last)
-        if old.exists():
-            shutil.rmtree(old)
+        # while writing: both go into one directory that is swapped in whole.
+        def fill(d: Path) -> None:
+            write_checkpoint(model, d, extra)
+            _save_train_state(d, optimizer, model, step, rng, best, elapsed())
+
+        publish(last, fill)
 
     bar = None
     if rank == 0 and args.progress:

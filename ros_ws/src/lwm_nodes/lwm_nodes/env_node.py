@@ -11,7 +11,7 @@ import json
 from lwm_interfaces.srv import Json
 
 from lwm_models import messages
-from lwm_models.messenger.session import GameSession
+from lwm_models.data.session import GameSession
 from lwm_nodes.common import LATCHED, JsonNode, run
 
 

@@ -4,25 +4,25 @@ its state and manual as message payloads (msgs_json/state and manual)."""
 from __future__ import annotations
 
 from ..errors import LwmError
-from .constants import NUM_ACTIONS
-from .engine import grid_to_compact
-from .env import MessengerEnv
+from ..messenger.constants import NUM_ACTIONS
+from ..messenger.engine import grid_to_compact
+from ..messenger.env import MessengerEnv
+from ..text import DescriptionPools
+from .splits import load_split
 
 
 class GameSession:
-    def __init__(self, split: str = "newall-test", index: int = 0, pools=None, max_steps: int = 32) -> None:
-        from ..data.splits import load_split
-        from ..text import DescriptionPools
-
+    def __init__(
+        self, split: str = "newall-test", index: int = 0, pools: DescriptionPools | None = None, max_steps: int = 32
+    ) -> None:
         self.pools = pools or DescriptionPools.generated()
         self.max_steps = max_steps
-        self._load_split = load_split
         self.env: MessengerEnv | None = None
         self.select(split, index)
 
     def select(self, split: str, index: int) -> None:
         try:
-            games = self._load_split(split)
+            games = load_split(split)
         except KeyError as exc:
             raise LwmError(str(exc).strip("'\"")) from None
         if not 0 <= index < len(games):
