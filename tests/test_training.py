@@ -17,6 +17,7 @@ from lwm_models.text import DescriptionPools
 from lwm_models.world.batches import SplitTokens
 from lwm_models.world.checkpoint import load_checkpoint
 from lwm_models.world.evaluate import imagination_metrics, loss_by_prefix
+from lwm_models.world.tokens import DUMMY_ACTION, FIRST_REWARD_LABEL
 from lwm_models.world.train import TrainArgs, evaluate_loss, train
 
 VENV_BIN = Path(sys.executable).parent
@@ -173,6 +174,14 @@ def load_checkpoint_or_new():
 
 def test_batches_follow_the_paper_recipe(tiny_data):
     data = SplitTokens(tiny_data, "train")
+    # Every episode's blocks: the first is context (dummy action, reward label 2, not done), the
+    # last is the only done one, and the actions are the episode's.
+    for e in range(0, len(data), 5):
+        lo, hi = data.offsets[e], data.offsets[e + 1]
+        blocks = data.blocks[lo:hi]
+        assert blocks[0, 0] == DUMMY_ACTION and blocks[0, -2] == FIRST_REWARD_LABEL and blocks[0, -1] == 0
+        assert blocks[-1, -1] == 1 and not blocks[:-1, -1].any()
+        assert (blocks[1:, 0] == np.asarray(data.ds.actions[lo + 1 : hi])).all()
     rng = np.random.default_rng(0)
     tokens, lengths, manual = data.sample(rng, 16)
     assert tokens.shape[0] == 16 and tokens.shape[1] == 15 * int(lengths.max())

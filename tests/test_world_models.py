@@ -17,8 +17,6 @@ from lwm_models.world.imagine import imagine
 from lwm_models.world.registry import KINDS, PRESETS, build_model
 from lwm_models.world.tokens import (
     BLOCK,
-    DUMMY_ACTION,
-    episode_to_blocks,
     obs_to_tokens,
     reward_label,
     tokens_to_obs,
@@ -54,17 +52,6 @@ def test_reward_labels():
     assert reward_label(np.array([-1.0, 0.0, 0.5, 1.0])).tolist() == [0, 2, 3, 4]
     with pytest.raises(ValueError):
         reward_label(2.0)
-
-
-def test_episode_blocks(episodes):
-    n = int(episodes.lengths[0])
-    blocks = episode_to_blocks(
-        episodes.observations[0, :n], episodes.actions[0, :n], episodes.rewards[0, :n], episodes.dones[0, :n]
-    )
-    assert blocks.shape == (n, BLOCK)
-    assert blocks[0, 0] == DUMMY_ACTION and blocks[0, -2] == 2 and blocks[0, -1] == 0
-    assert blocks[-1, -1] == 1
-    assert (blocks[1:, 0] == episodes.actions[0, 1:n]).all()
 
 
 def test_shape_errors():

@@ -39,10 +39,6 @@ class CallStats:
     server_s: float = 0.0  # what the simulator spent (its `seconds`)
     retries: int = 0
 
-    @property
-    def overhead_s(self) -> float:
-        return self.round_trip_s - self.server_s
-
 
 @dataclass
 class ServiceImaginer:

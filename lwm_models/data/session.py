@@ -71,6 +71,3 @@ class GameSession:
 
     def manual(self) -> dict:
         return {"descriptions": list(self.info["manual"]), "source": "env", "episode_id": self.episode_id}
-
-    def true_parse(self) -> list[tuple[str, str, str]]:
-        return [tuple(t) for t in self.info["parse"]]

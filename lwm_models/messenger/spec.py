@@ -6,7 +6,7 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 
 from ..errors import InvalidSpecError
-from .constants import IDENTITIES, MOVEMENTS, ROLES, TRAIN_TRIPLES, Triple
+from .constants import IDENTITIES, MOVEMENTS, ROLES, Triple
 
 
 @dataclass(frozen=True)
@@ -77,10 +77,6 @@ class GameSpec:
     @property
     def identity_set(self) -> frozenset[str]:
         return frozenset(e.identity for e in self.entities)
-
-    def is_train_combination(self) -> bool:
-        """True when all three triples are training triples."""
-        return all(t in TRAIN_TRIPLES for t in self.triples)
 
     def to_json(self) -> list[list[str]]:
         return [list(t) for t in self.triples]

@@ -32,10 +32,8 @@ from .tokens import (
     DONE_VOCAB,
     ID_SLOTS,
     MAX_BLOCKS,
-    OBS_TOKENS,
     OBS_VOCAB,
     REWARD_VOCAB,
-    SLOT_ACTION,
     SLOT_DONE,
     SLOT_KIND,
     SLOT_OBS,
@@ -233,7 +231,3 @@ class WorldModel(nn.Module):
             means[name] = sums[name] / counts[name].clamp(min=1)
         total = means["obs"] + means["reward"] + means["done"]
         return LossOutput(total, means["obs"], means["reward"], means["done"], sums, counts)
-
-
-OBS_POSITIONS_IN_BLOCK = np.arange(1, 1 + OBS_TOKENS)
-__all__ = ["WorldModel", "ManualBatch", "Conditioning", "LossOutput", "MAX_LEN", "SLOT_ACTION"]

@@ -32,8 +32,6 @@ from .frozen_text import FrozenTextEncoder
 from .imagine import Rollout, imagine
 from .shipped import shipped_checkpoint
 
-MAX_TRAJECTORIES = 256  # per request or session: bounds the memory one client can take
-
 
 class RequestError(LwmError, ValueError):
     """An imagine request the simulator cannot serve (a bad state, an unknown session, ...)."""

@@ -69,23 +69,3 @@ def tokens_to_obs(tokens: np.ndarray) -> np.ndarray:
     cols = np.clip(t[..., 2] - COL_OFFSET, 0, GRID - 1)
     out = np.stack([ids, np.where(ids > 0, rows, 0), np.where(ids > 0, cols, 0)], axis=-1)
     return out.astype(np.uint8)
-
-
-def episode_to_blocks(
-    observations: np.ndarray, actions: np.ndarray, rewards: np.ndarray, dones: np.ndarray, first_is_start: bool = True
-) -> np.ndarray:
-    """An episode (or a segment of one) -> [T, 15] token blocks.
-
-    The first block is context: its action is the dummy and its reward label 2 when it is an
-    episode's first observation; a segment starting later keeps its real action and reward.
-    """
-    blocks = np.zeros((len(observations), BLOCK), dtype=np.int64)
-    blocks[:, 0] = np.asarray(actions, dtype=np.int64)
-    blocks[:, 1 : 1 + OBS_TOKENS] = obs_to_tokens(observations)
-    blocks[:, -2] = reward_label(rewards)
-    blocks[:, -1] = np.asarray(dones, dtype=np.int64)
-    if first_is_start:
-        blocks[0, 0] = DUMMY_ACTION
-        blocks[0, -2] = FIRST_REWARD_LABEL
-        blocks[0, -1] = 0
-    return blocks

@@ -36,7 +36,7 @@ from lwm_nodes.common import FEEDBACK, LATCHED, JsonNode, json_caller, run
 
 
 class HumanNode(JsonNode):
-    def __init__(self, stop: threading.Event | None = None) -> None:
+    def __init__(self, stop: threading.Event) -> None:
         super().__init__("human_feedback")
         p = self.declare_parameter
         self.scripted = bool(p("scripted", False).value)
@@ -161,8 +161,7 @@ class HumanNode(JsonNode):
             return
         self.reports.add(report["review_id"])
         if len(self.reports) >= self.episodes:
-            if self.stop is not None:
-                self.stop.set()
+            self.stop.set()
             return
         # The operator's part: start the next episode (the next seed) of the same game.
         seed = int(report["review_id"].rsplit(":", 1)[-1]) + 1
