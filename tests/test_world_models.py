@@ -201,3 +201,31 @@ def test_export_to_fp16_for_shipping(tmp_path):
     assert (tmp_path / "ship" / "model.safetensors").stat().st_size < (
         tmp_path / "run" / "model.safetensors"
     ).stat().st_size
+
+
+def test_consistency_counts_are_zero_on_the_real_game_and_see_each_fault():
+    from lwm_models.world.evaluate import consistency_counts
+
+    games = load_split("newall-test")[:200]
+    ro = rollout(games, np.arange(200) * 13 + 5, np.arange(200) % 5)
+    real = consistency_counts(ro.observations, ro.rewards, ro.lengths)
+    assert real["transitions"] == int((ro.lengths - 1).sum()) and real["avatar_moves"] > 0
+    assert real["identity_changes"] == real["vanished_without_reward"] == real["avatar_jumps"] == 0
+    # One trajectory with each fault once: a channel's id changes at step 1, the avatar jumps two
+    # cells at step 2, and an entity disappears at step 3 with reward 0.
+    obs = np.zeros((1, 4, 4, 3), dtype=np.uint8)
+    obs[0, :, 0] = [2, 1, 1]
+    obs[0, :, 1] = [4, 8, 8]
+    obs[0, :, 2] = [9, 3, 3]
+    obs[0, :, 3] = [15, 5, 5]
+    obs[0, 1:, 0, 0] = 3
+    obs[0, 2:, 3, 1] = 7
+    obs[0, 3:, 1] = 0
+    fake = consistency_counts(obs, np.zeros((1, 4)), np.array([4]))
+    assert fake == {
+        "transitions": 3,
+        "identity_changes": 1,
+        "vanished_without_reward": 1,
+        "avatar_moves": 3,
+        "avatar_jumps": 1,
+    }

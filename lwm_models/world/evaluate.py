@@ -11,7 +11,14 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from ..messenger.constants import ACTION_DELTAS, DEFAULT_MAX_STEPS, GRID, IDENTITIES
+from ..messenger.constants import (
+    ACTION_DELTAS,
+    AVATAR_NO_MESSAGE,
+    AVATAR_WITH_MESSAGE,
+    DEFAULT_MAX_STEPS,
+    GRID,
+    IDENTITIES,
+)
 from .base import WorldModel
 from .batches import SplitTokens
 from .imagine import imagine
@@ -62,7 +69,7 @@ def _positions(obs: np.ndarray, entity_id: int) -> np.ndarray | None:
 
 
 def _avatar(obs: np.ndarray) -> np.ndarray | None:
-    return obs[3, 1:].astype(np.int64) if obs[3, 0] in (15, 16) else None
+    return obs[3, 1:].astype(np.int64) if obs[3, 0] in (AVATAR_NO_MESSAGE, AVATAR_WITH_MESSAGE) else None
 
 
 def _reach(movement: str) -> int:
@@ -79,12 +86,56 @@ def _near(prev_obs: np.ndarray, action: int, entity_id: int, movement: str) -> b
     return int(np.abs(moved - entity).sum()) <= _reach(movement)
 
 
+def consistency_counts(observations: np.ndarray, rewards: np.ndarray, lengths: np.ndarray) -> dict[str, int]:
+    """Counts of what no real Messenger transition does, over trajectories [n, T, 4, 3] (rewards
+    [n, T], `lengths` valid steps each): an entity channel that changes its identity, an avatar
+    that moves more than one cell, an entity that vanishes with reward 0 (in the game an entity
+    only leaves with a reward: the message picked up, the goal reached, a death on the message).
+    `transitions` and `avatar_moves` are the denominators."""
+    obs = np.asarray(observations).astype(np.int64)
+    prev, cur = obs[:, :-1], obs[:, 1:]
+    valid = np.arange(1, obs.shape[1])[None, :] < np.asarray(lengths)[:, None]  # [n, T-1]
+    ent_prev, ent_cur = prev[..., :3, 0], cur[..., :3, 0]
+    changed = (ent_prev > 0) & (ent_cur > 0) & (ent_prev != ent_cur)
+    vanished = (ent_prev > 0) & (ent_cur == 0) & (np.asarray(rewards)[:, 1:, None] == 0)
+    avatar_ids = (AVATAR_NO_MESSAGE, AVATAR_WITH_MESSAGE)
+    both = np.isin(prev[..., 3, 0], avatar_ids) & np.isin(cur[..., 3, 0], avatar_ids) & valid
+    jump = np.abs(cur[..., 3, 1:] - prev[..., 3, 1:]).sum(-1) > 1
+    return {
+        "transitions": int(valid.sum()),
+        "identity_changes": int((changed & valid[..., None]).sum()),
+        "vanished_without_reward": int((vanished & valid[..., None]).sum()),
+        "avatar_moves": int(both.sum()),
+        "avatar_jumps": int((jump & both).sum()),
+    }
+
+
 @dataclass
 class ImaginationMetrics:
+    """Table 2 and more, from test episodes replayed in imagination (actions of the real episode).
+
+    delta_dist: mean |imagined - real| avatar-entity Manhattan distance (paper's first column).
+    reward_precision, termination_precision: the share of imagined non-zero rewards (ends) with an
+        entity of a fitting role in reach (the paper's); recall: the share of the real episodes'
+        non-zero rewards (ends) that the imagination has at the same step with the same value.
+    reward_without_reach: the share of imagined non-zero rewards with no entity in reach at all.
+    identity_change_rate: entity channels changing identity per imagined transition (each of 3
+        channels counted); avatar_jump_rate: avatar moves longer than one cell per avatar move;
+        vanish_rate: entities vanishing without a reward per transition. Real episodes score 0 on
+        these three.
+    """
+
     delta_dist: float
     reward_precision: float
+    reward_recall: float
     termination_precision: float
+    termination_recall: float
+    reward_without_reach: float
+    identity_change_rate: float
+    avatar_jump_rate: float
+    vanish_rate: float
     reward_steps: int
+    real_reward_steps: int
     done_steps: int
     episodes: int
 
@@ -106,7 +157,11 @@ def imagination_metrics(
     if episodes is not None and episodes < len(chosen):
         chosen = np.linspace(0, len(chosen) - 1, episodes).round().astype(np.int64)
     dist_err, dist_n = 0.0, 0
-    reward_ok = reward_n = done_ok = done_n = 0
+    reward_ok = reward_n = done_ok = done_n = unreached = 0
+    real_rewards = recalled_rewards = real_dones = recalled_dones = 0
+    counts = dict.fromkeys(
+        ("transitions", "identity_changes", "vanished_without_reward", "avatar_moves", "avatar_jumps"), 0
+    )
     for lo in range(0, len(chosen), batch):
         idx = chosen[lo : lo + batch]
         manual = data.manual_batch(idx)
@@ -116,6 +171,8 @@ def imagination_metrics(
         for i, ep in enumerate(real):
             acts[i, : len(ep.actions) - 1] = ep.actions[1:]
         im = imagine(model, manual, firsts, n=len(idx), actions=acts, seed=seed + lo, max_steps=max_steps)
+        for k, v in consistency_counts(im.observations, im.rewards, im.lengths).items():
+            counts[k] += v
         for i, ep in enumerate(real):
             entities = [(IDENTITIES[e.identity], e.movement, e.role) for e in ep.game.entities]
             common = min(len(ep.observations), int(im.lengths[i]))
@@ -129,6 +186,13 @@ def imagination_metrics(
                         continue
                     dist_err += abs(int(np.abs(a_im - p_im).sum()) - int(np.abs(a_real - p_real).sum()))
                     dist_n += 1
+            for t in range(1, common):
+                if ep.rewards[t] != 0:
+                    real_rewards += 1
+                    recalled_rewards += float(im.rewards[i, t]) == float(ep.rewards[t])
+            if ep.dones[-1] and len(ep.observations) - 1 < int(im.lengths[i]):
+                real_dones += 1
+                recalled_dones += bool(im.dones[i, len(ep.observations) - 1])
             by_role = {role: (eid, mov) for eid, mov, role in entities}
             for t in range(1, int(im.lengths[i])):
                 prev, action, r = im.observations[i, t - 1], int(im.actions[i, t]), float(im.rewards[i, t])
@@ -136,14 +200,22 @@ def imagination_metrics(
                     roles = {-1.0: ("enemy", "goal"), 0.5: ("message",), 1.0: ("goal",)}.get(r, ())
                     reward_n += 1
                     reward_ok += any(_near(prev, action, *by_role[role]) for role in roles)
+                    unreached += not any(_near(prev, action, eid, mov) for eid, mov, _ in entities)
                 if im.dones[i, t]:
                     done_n += 1
                     done_ok += t == max_steps or any(_near(prev, action, *by_role[role]) for role in ("enemy", "goal"))
     return ImaginationMetrics(
         delta_dist=dist_err / max(1, dist_n),
         reward_precision=reward_ok / max(1, reward_n),
+        reward_recall=recalled_rewards / max(1, real_rewards),
         termination_precision=done_ok / max(1, done_n),
+        termination_recall=recalled_dones / max(1, real_dones),
+        reward_without_reach=unreached / max(1, reward_n),
+        identity_change_rate=counts["identity_changes"] / max(1, counts["transitions"]),
+        avatar_jump_rate=counts["avatar_jumps"] / max(1, counts["avatar_moves"]),
+        vanish_rate=counts["vanished_without_reward"] / max(1, counts["transitions"]),
         reward_steps=reward_n,
+        real_reward_steps=real_rewards,
         done_steps=done_n,
         episodes=len(chosen),
     )
