@@ -28,7 +28,7 @@ os.environ.setdefault("ROS_DOMAIN_ID", str(1 + os.getpid() % 100))
 os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
 
 import rclpy  # noqa: E402
-from lwm_interfaces.srv import Imagine  # noqa: E402
+from lwm_interfaces.srv import Json  # noqa: E402
 from lwm_nodes.common import EVENTS, ros_environment  # noqa: E402
 from lwm_nodes.ros_cli import BackgroundSpin  # noqa: E402
 from std_msgs.msg import String  # noqa: E402
@@ -95,7 +95,7 @@ def main() -> None:
         rclpy.init()
         node = rclpy.create_node("bench_client")
         spinner = BackgroundSpin(node)
-        client = node.create_client(Imagine, "/lwm/imagine")
+        client = node.create_client(Json, "/lwm/imagine")
         assert client.wait_for_service(timeout_sec=30), "simulator not available"
         # Interleaved, so that both see the same machine: the overhead is the median of the
         # paired differences (round trip minus the in-process call just before it).
@@ -105,7 +105,7 @@ def main() -> None:
             messages.dump("imagine_response", sim.imagine(messages.parse("imagine_request", text)))
             t_local = time.perf_counter() - t
             t = time.perf_counter()
-            response = client.call(Imagine.Request(request=text), timeout_sec=30)
+            response = client.call(Json.Request(request=text), timeout_sec=30)
             t_remote = time.perf_counter() - t
             assert json.loads(response.response)["ok"]
             if i >= 10:  # warm-up

@@ -44,7 +44,7 @@ cmake -S "$pkg" -B "$build" -DCMAKE_INSTALL_PREFIX="$venv" -DBUILD_TESTING=OFF \
   || { tail -40 "$build/configure.log" >&2; exit 1; }
 cmake --build "$build" -j 2 > "$build/build.log" 2>&1 || { tail -40 "$build/build.log" >&2; exit 1; }
 cmake --install "$build" > "$build/install.log" 2>&1 || { tail -40 "$build/install.log" >&2; exit 1; }
-"$venv/bin/python" -c "from lwm_interfaces.srv import Imagine, Json" \
+"$venv/bin/python" -c "from lwm_interfaces.srv import Json" \
   || { echo "setup: lwm_interfaces built but does not import" >&2; exit 1; }
 echo "$want" > "$stamp"
 echo "setup: ROS 2 service types installed" >&2

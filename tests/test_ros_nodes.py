@@ -111,7 +111,7 @@ def test_graph_lists_the_nodes_and_services(system):
     nodes = lwm_ros(system, "nodes", "--settle", "3").stdout.split()
     assert "/messenger_env" in nodes and "/lwm_simulator" in nodes
     services = lwm_ros(system, "services", "--settle", "3").stdout
-    assert "/lwm/imagine [lwm_interfaces/srv/Imagine]" in services and "/env/step" in services
+    assert "/lwm/imagine [lwm_interfaces/srv/Json]" in services and "/env/step" in services
 
 
 def test_imagine_uses_the_environment_manual_then_the_feedback(system):

@@ -25,7 +25,7 @@ import threading
 import time
 
 import numpy as np
-from lwm_interfaces.srv import Imagine, Json
+from lwm_interfaces.srv import Json
 
 from lwm_models.agent.imaginer import ServiceImaginer
 from lwm_models.agent.reviewer import ScriptedReviewer
@@ -60,7 +60,7 @@ class HumanNode(JsonNode):
         self.publish_labels = self.json_publisher("/review/labels", "labels", FEEDBACK)
         self.publish_manual = self.json_publisher("/feedback/manual", "manual", LATCHED)
         self.imaginer = ServiceImaginer(
-            json_caller(self, self.create_client(Imagine, "/lwm/imagine"), "imagine_response", 30.0)
+            json_caller(self, self.create_client(Json, "/lwm/imagine"), "imagine_response", 30.0)
         )
         self.env_reset = json_caller(self, self.create_client(Json, "/env/reset"), None, 30.0)
         self.json_subscription("/env/state", "state", self.on_state, LATCHED)

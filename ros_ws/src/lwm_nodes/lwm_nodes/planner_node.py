@@ -10,7 +10,7 @@ through /env/reset and /env/step, closed loop, only after approval.
 
 from __future__ import annotations
 
-from lwm_interfaces.srv import Imagine, Json
+from lwm_interfaces.srv import Json
 
 from lwm_models import messages
 from lwm_models.agent.imaginer import ServiceImaginer
@@ -47,7 +47,7 @@ class PlannerNode(JsonNode):
             risk_horizon=int(p("risk_horizon", ReviewConfig.risk_horizon).value),
             max_rereviews=int(p("max_rereviews", ReviewConfig.max_rereviews).value),
         )
-        imagine = self.create_client(Imagine, "/lwm/imagine")
+        imagine = self.create_client(Json, "/lwm/imagine")
         self.imaginer = ServiceImaginer(json_caller(self, imagine, "imagine_response", call_timeout))
         ports = Ports(
             publish_plan=self.json_publisher("/planner/plan", "plan", LATCHED),

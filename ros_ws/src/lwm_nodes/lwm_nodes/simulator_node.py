@@ -9,7 +9,7 @@ version survive a restart (parameter `state`).
 
 from __future__ import annotations
 
-from lwm_interfaces.srv import Imagine
+from lwm_interfaces.srv import Json
 
 from lwm_models.world.simulator import Simulator, serve_json
 from lwm_nodes.common import LATCHED, JsonNode, run
@@ -31,7 +31,7 @@ class SimulatorNode(JsonNode):
         self.publish_status = self.json_publisher("/lwm/status", "status", LATCHED)
         self.json_subscription("/feedback/manual", "manual", self.on_feedback, LATCHED)
         self.json_subscription("/env/manual", "manual", self.on_env_manual, LATCHED)
-        self.create_service(Imagine, "/lwm/imagine", self.on_imagine)
+        self.create_service(Json, "/lwm/imagine", self.on_imagine)
         self.publish_status(self.sim.status())
         self.get_logger().info(
             f"model {self.sim.model_name} from {self.sim.checkpoint}; manual v{self.sim.manual_version}"
