@@ -160,7 +160,6 @@ def test_table3_game(agent_parts, setting):
     result = run_game(
         setting,
         world,
-        "emma",
         EmmaPolicy(),
         game,
         MANUAL,
@@ -171,7 +170,7 @@ def test_table3_game(agent_parts, setting):
     s = summarize([result["return"], 0.5])
     assert s["ci95"][0] <= s["mean"] <= s["ci95"][1] and s["games"] == 2
     with pytest.raises(ValueError):
-        run_game("dagger", world, "emma", EmmaPolicy(), game, MANUAL, encoder, Budget())
+        run_game("dagger", world, EmmaPolicy(), game, MANUAL, encoder, Budget())
 
 
 def test_table3_cli_records_resume_and_merge(tmp_path):

@@ -21,9 +21,7 @@ UP, DOWN, LEFT, RIGHT, STAY = range(5)
 ENEMY, MESSAGE, GOAL = range(3)
 
 
-def make_env(
-    enemy="chaser", message="immovable", goal="immovable", max_steps=32, seed=0, pools=None
-) -> MessengerEnv:
+def make_env(enemy="chaser", message="immovable", goal="immovable", max_steps=32, seed=0, pools=None) -> MessengerEnv:
     spec = GameSpec.from_triples([("dog", enemy, "enemy"), ("queen", message, "message"), ("ball", goal, "goal")])
     env = MessengerEnv(spec, pools=pools, max_steps=max_steps)
     env.reset(seed=seed)

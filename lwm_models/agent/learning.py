@@ -163,15 +163,29 @@ class Budget:
     """What learning in one game may spend. The paper: 2,000 updates of 10 imagined episodes; here
     fewer rounds, each followed by several minibatch steps on every state labelled so far."""
 
-    iterations: int = 40  # online imitation: rounds of imagination with the current policy
-    episodes: int = 16  # imagined episodes per round
-    grad_steps: int = 10  # minibatch steps after each round (filtered BC: iterations x grad_steps)
-    batch: int = 256
-    lr: float = 1e-3
-    plans_per_start: int = 8  # filtered BC: expert plans imagined from each start
-    keep: float = 0.25  # filtered BC: the share of each start's plans (highest imagined return) cloned
-    eval_episodes: int = 48
-    overlap: bool = False  # online imitation: imagine round u+1 while learning from round u (acting lags a round)
+    iterations: int = field(
+        default=40, metadata={"help": "online imitation: rounds of imagination with the current policy"}
+    )
+    episodes: int = field(default=16, metadata={"help": "imagined episodes per round"})
+    grad_steps: int = field(
+        default=10,
+        metadata={"help": "minibatch steps after each round (filtered BC: iterations x grad_steps)"},
+    )
+    batch: int = field(default=256, metadata={"help": "labelled states per minibatch step"})
+    lr: float = field(default=1e-3, metadata={"help": "Adam learning rate of the policy"})
+    plans_per_start: int = field(default=8, metadata={"help": "filtered BC: expert plans imagined from each start"})
+    keep: float = field(
+        default=0.25,
+        metadata={"help": "filtered BC: the share of each start's plans (highest imagined return) cloned"},
+    )
+    eval_episodes: int = field(default=48, metadata={"help": "real episodes that evaluate the learnt policy"})
+    overlap: bool = field(
+        default=False,
+        metadata={
+            "help": "online imitation: imagine round u+1 while learning from round u (acting lags a round; "
+            "the review loop's default)"
+        },
+    )
 
 
 def start_observations(game: GameSpec, seed: int = 0) -> np.ndarray:

@@ -63,7 +63,6 @@ def filtered_behaviour_cloning(
 def run_game(
     setting: str,
     world: WorldModel,
-    kind: str,
     warm: EmmaPolicy,
     game: GameSpec,
     manual: list[str],

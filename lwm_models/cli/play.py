@@ -34,6 +34,7 @@ from ..messenger.constants import (
     UP,
 )
 from ..messenger.render import legend, render_ascii
+from .args import nonnegative_int, positive_int
 
 KEY_ACTIONS: dict[str, int] = {
     "up": UP,
@@ -217,34 +218,25 @@ def _start_arg(text: str) -> int | None:
     return value
 
 
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {value}")
-    return value
-
-
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog="lwm play",
+def register(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser(
+        "play",
+        help="play a Messenger game in the terminal",
         description="Play a Messenger game in the terminal. " + KEY_HELP + ".",
         epilog="When stdin is not a terminal, every character of every input line is one key.",
     )
-    parser.add_argument("--split", choices=SPLITS, default="newall-test", help="split the game comes from")
-    parser.add_argument("--index", type=int, default=0, help="index of the game in the split")
-    parser.add_argument("--seed", type=int, default=0, help="episode seed: moves, channel order, manual")
-    parser.add_argument(
+    p.add_argument("--split", choices=SPLITS, default="newall-test", metavar="SPLIT", help="split the game comes from")
+    p.add_argument("--index", type=nonnegative_int, default=0, help="index of the game in the split")
+    p.add_argument("--seed", type=nonnegative_int, default=0, help="episode seed: moves, channel order, manual")
+    p.add_argument(
         "--start",
         type=_start_arg,
         default=None,
         metavar="{0-23,none}",
         help="start positions (index into the 24 starts); 'none' (default) lets the seed choose",
     )
-    parser.add_argument("--max-steps", type=_positive_int, default=DEFAULT_MAX_STEPS, help="time limit in actions")
-    parser.add_argument(
+    p.add_argument("--max-steps", type=positive_int, default=DEFAULT_MAX_STEPS, help="time limit in actions")
+    p.add_argument(
         "--texts",
         type=Path,
         nargs="*",
@@ -252,8 +244,8 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="PATH",
         help="human-written description JSON file(s) to draw the manual from (default: generated)",
     )
-    parser.add_argument("--no-color", action="store_true", help="no ANSI colours even on a terminal")
-    return parser
+    p.add_argument("--no-color", action="store_true", help="no ANSI colours even on a terminal")
+    p.set_defaults(func=run)
 
 
 def _pools(texts: list[Path] | None) -> Any:
@@ -264,30 +256,24 @@ def _pools(texts: list[Path] | None) -> Any:
     return DescriptionPools.generated()
 
 
-def play_main(args: list[str] | None = None) -> int:
-    """Entry point of `lwm play`; returns the exit status (0 played or quit, 2 bad input, 130 Ctrl-C)."""
-    parser = build_parser()
-    try:
-        opts = parser.parse_args(args)
-    except SystemExit as exc:  # argparse has printed the usage and the problem
-        return int(exc.code or 0)
-
+def run(opts: argparse.Namespace) -> int:
+    """`lwm play`: 0 when the game was played or quit, 130 on Ctrl-C; bad input raises LwmError."""
     from ..data.splits import load_split
     from ..messenger.env import MessengerEnv
 
+    games = load_split(opts.split)
+    if not 0 <= opts.index < len(games):
+        raise LwmError(f"--index must be in 0..{len(games) - 1} for {opts.split}, got {opts.index}")
+    pools = _pools(opts.texts)
+    env = MessengerEnv(games[opts.index], pools=pools, split=opts.split, max_steps=opts.max_steps)
+    title = f"Messenger: {opts.split} game {opts.index}, seed {opts.seed}"
+    interactive = sys.stdin.isatty()
+
+    def write(text: str) -> None:
+        sys.stdout.write(text)
+        sys.stdout.flush()
+
     try:
-        games = load_split(opts.split)
-        if not 0 <= opts.index < len(games):
-            raise LwmError(f"--index must be in 0..{len(games) - 1} for {opts.split}, got {opts.index}")
-        pools = _pools(opts.texts)
-        env = MessengerEnv(games[opts.index], pools=pools, split=opts.split, max_steps=opts.max_steps)
-        title = f"Messenger: {opts.split} game {opts.index}, seed {opts.seed}"
-        interactive = sys.stdin.isatty()
-
-        def write(text: str) -> None:
-            sys.stdout.write(text)
-            sys.stdout.flush()
-
         if interactive:
             color = sys.stdout.isatty() and not opts.no_color and os.environ.get("NO_COLOR") is None
             with tty_key_reader(sys.stdin.fileno()) as read_key:
@@ -295,12 +281,17 @@ def play_main(args: list[str] | None = None) -> int:
                     env, opts.seed, opts.start, read_key, write, color=color, clear=sys.stdout.isatty(), title=title
                 )
         return run_game(env, opts.seed, opts.start, line_key_reader(sys.stdin), write, title=title)
-    except (LwmError, OSError) as exc:
-        print(f"lwm play: error: {exc}", file=sys.stderr)
-        return 2
     except KeyboardInterrupt:
+        # Ctrl-C leaves the cursor after the board's last line; end it so the shell prompt is clean.
         print("\ninterrupted", file=sys.stderr)
         return 130
+
+
+def play_main(args: list[str] | None = None) -> int:
+    """`lwm play ARGS` as a function (for tests and scripts); returns the exit status."""
+    from .main import main
+
+    return main(["play", *(sys.argv[1:] if args is None else args)])
 
 
 if __name__ == "__main__":

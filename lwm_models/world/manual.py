@@ -53,9 +53,3 @@ def text_manual(descriptions: Sequence[str], encoder: FrozenTextEncoder | None) 
         return ManualBatch()
     features, mask = encoder.encode(list(descriptions))
     return ManualBatch(features[None], mask[None])
-
-
-def manual_batch(kind, descriptions, encoder, parse=None):  # TEMP(refactor in progress)
-    from .registry import model_class
-
-    return model_class(kind).read_manual(descriptions, encoder, parse)

@@ -53,7 +53,3 @@ def model_class(kind: str) -> type[WorldModel]:
 
 def build_model(kind: str, config: WorldModelConfig) -> WorldModel:
     return model_class(kind)(config)
-
-
-# TEMP(refactor in progress): removed once the CLI modules read these from the model classes.
-NEEDS_TEXT = {k: c.reads_text for k, c in KINDS.items()}

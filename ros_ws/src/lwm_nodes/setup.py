@@ -15,6 +15,12 @@ setup(
         "console_scripts": [
             "lwm_env_node = lwm_nodes.env_node:main",
             "lwm_simulator_node = lwm_nodes.simulator_node:main",
-        ]
+            "lwm_planner_node = lwm_nodes.planner_node:main",
+            "lwm_human_node = lwm_nodes.human_node:main",
+        ],
+        # `lwm ros`: the core's command line discovers the commands of this group (lwm_models/cli/main.py).
+        "lwm_models.commands": [
+            "ros = lwm_nodes.ros_cli:register",
+        ],
     },
 )

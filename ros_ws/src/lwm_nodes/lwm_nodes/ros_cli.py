@@ -3,9 +3,13 @@
     lwm ros nodes | topics | services
     lwm ros pub TOPIC JSON|@FILE [--kind manual] [--volatile] [--wait 1.0] [-w N]
     lwm ros echo TOPIC [--count N] [--timeout S] [--latched]
-    lwm ros call SERVICE JSON|@FILE [--type Imagine|Json] [--timeout S]
+    lwm ros call SERVICE JSON|@FILE [--timeout S]
 
 Discovery stays on this machine unless ROS_AUTOMATIC_DISCOVERY_RANGE says otherwise.
+
+`lwm` finds this command through the entry point `ros = lwm_nodes.ros_cli:register` (group
+lwm_models.commands, see setup.py). `lwm` loads that entry point on every run, whatever the command,
+so this module imports rclpy and the message types only when a ROS command runs.
 """
 
 from __future__ import annotations
@@ -17,15 +21,10 @@ import sys
 import threading
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import rclpy
-from rclpy.duration import Duration
-from rclpy.node import Node
-from rclpy.signals import SignalHandlerOptions
-from std_msgs.msg import String
-
-from lwm_models import messages
-from lwm_nodes.common import EVENTS, LATCHED, make_executor, ros_environment
+if TYPE_CHECKING:
+    from rclpy.node import Node
 
 
 def _payload(arg: str, raw: bool = False) -> str:
@@ -40,6 +39,8 @@ class BackgroundSpin:
     it before the node is destroyed: destroying a node under a spinning thread aborts."""
 
     def __init__(self, node: Node) -> None:
+        from lwm_nodes.common import make_executor
+
         self.executor = make_executor()
         self.executor.add_node(node)
         self.stop = threading.Event()
@@ -70,6 +71,12 @@ def cmd_graph(node: Node, what: str, settle: float) -> int:
 
 
 def cmd_pub(node: Node, args) -> int:
+    from rclpy.duration import Duration
+    from std_msgs.msg import String
+
+    from lwm_models import messages
+    from lwm_nodes.common import EVENTS, LATCHED
+
     text = _payload(args.payload, args.raw)
     if args.kind:
         messages.parse(args.kind, text)
@@ -87,6 +94,10 @@ def cmd_pub(node: Node, args) -> int:
 
 
 def cmd_echo(node: Node, args) -> int:
+    from std_msgs.msg import String
+
+    from lwm_nodes.common import EVENTS, LATCHED
+
     got = []
     done = threading.Event()
 
@@ -102,14 +113,13 @@ def cmd_echo(node: Node, args) -> int:
 
 
 def cmd_call(node: Node, args) -> int:
-    from lwm_interfaces.srv import Imagine, Json
+    from lwm_interfaces.srv import Json
 
-    srv_type = {"Imagine": Imagine, "Json": Json}[args.type]
-    client = node.create_client(srv_type, args.service)
+    client = node.create_client(Json, args.service)
     if not client.wait_for_service(timeout_sec=args.timeout):
         print(f"lwm ros: error: service {args.service} is not available", file=sys.stderr)
         return 2
-    request = srv_type.Request(request=_payload(args.payload, args.raw))
+    request = Json.Request(request=_payload(args.payload, args.raw))
     response = client.call(request, timeout_sec=args.timeout)
     if response is None:
         print(f"lwm ros: error: {args.service} did not answer within {args.timeout} s", file=sys.stderr)
@@ -118,14 +128,17 @@ def cmd_call(node: Node, args) -> int:
     return 0
 
 
-def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="lwm ros", description="ROS 2 graph tools for the LWM system")
+HELP = "ROS 2 graph tools: nodes, topics, services, pub, echo, call"
+DESCRIPTION = "ROS 2 graph tools for the LWM system"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
     sub = p.add_subparsers(dest="cmd", required=True)
     for what in ("nodes", "topics", "services"):
         s = sub.add_parser(what, help=f"list the graph's {what}")
         s.add_argument("--settle", type=float, default=1.0, help="seconds to wait for discovery")
     s = sub.add_parser("pub", help="publish one JSON message")
-    s.add_argument("topic")
+    s.add_argument("topic", help="topic name, e.g. /feedback/manual")
     s.add_argument("payload", help="JSON text, or @FILE")
     s.add_argument("--kind", default=None, help="validate against msgs_json/<kind>.schema.json first")
     s.add_argument("--latched", action="store_true", help="(the default) transient-local QoS, depth 1")
@@ -141,17 +154,28 @@ def build_parser() -> argparse.ArgumentParser:
     )
     s.add_argument("--raw", action="store_true", help="send the text as it is, even if it is not JSON")
     s = sub.add_parser("echo", help="print the messages of a topic")
-    s.add_argument("topic")
+    s.add_argument("topic", help="topic name, e.g. /lwm/status")
     s.add_argument("--count", type=int, default=0, help="stop after N messages (0: until timeout)")
     s.add_argument("--timeout", type=float, default=10.0, help="seconds (0: forever)")
     s.add_argument("--latched", action="store_true", help="transient-local QoS, to get the last latched message")
     s = sub.add_parser("call", help="call a JSON service")
-    s.add_argument("service")
+    s.add_argument("service", help="service name, e.g. /lwm/imagine")
     s.add_argument("payload", help="JSON text, or @FILE")
-    s.add_argument("--type", choices=["Imagine", "Json"], default=None, help="default: Imagine for /lwm/imagine")
-    s.add_argument("--timeout", type=float, default=30.0)
+    s.add_argument("--timeout", type=float, default=30.0, help="seconds to wait for the service and its answer")
     s.add_argument("--raw", action="store_true", help="send the text as it is, even if it is not JSON")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="lwm ros", description=DESCRIPTION)
+    add_arguments(p)
     return p
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    """Adds `ros` to `lwm` (the entry point in the group lwm_models.commands)."""
+    p = subparsers.add_parser("ros", help=HELP, description=DESCRIPTION)
+    add_arguments(p)
+    p.set_defaults(func=run)
 
 
 def _interrupt(*_) -> None:
@@ -159,9 +183,20 @@ def _interrupt(*_) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
-    if getattr(args, "type", "x") is None:
-        args.type = "Imagine" if args.service.endswith("imagine") else "Json"
+    return run(build_parser().parse_args(argv))
+
+
+def run(args: argparse.Namespace) -> int:
+    try:
+        import rclpy
+        from rclpy.signals import SignalHandlerOptions
+
+        from lwm_nodes.common import ros_environment
+    except ImportError as exc:  # lwm_nodes is installed, but not ROS 2 itself
+        print(f"lwm ros: error: ROS 2 is not available ({exc}); run ./run_nodes.sh once", file=sys.stderr)
+        return 2
+    from lwm_models import messages
+
     ros_environment()
     # rclpy's handlers would shut the context down under the spinning thread; SIGINT and SIGTERM
     # end the command through KeyboardInterrupt instead, so the node is torn down in order.

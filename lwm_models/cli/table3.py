@@ -8,17 +8,10 @@ import time
 from pathlib import Path
 
 import numpy as np
-import torch
-from tqdm import tqdm
 
-from ..data.dataset import TrajectoryDataset
 from ..errors import LwmError
-from ..world.checkpoint import load_checkpoint
-from ..world.frozen_text import FrozenTextEncoder
-from ..world.shipped import SHIPPED, SHIPPED_ORACLE, SHIPPED_POLICY
-from .learning import Budget
-from .policy import EmmaPolicy, load_policy
-from .table3 import run_game, summarize
+from ..messenger.constants import SPLITS as ALL_SPLITS
+from .args import LwmParser, add_dataclass_arguments, nonnegative_int, positive_float, positive_int
 
 PAPER = {  # real return, from the paper (shared/docs/messenger-wm.md §4)
     ("online_il", "observational"): (0.75, -0.41, -0.21),
@@ -29,16 +22,33 @@ PAPER = {  # real return, from the paper (shared/docs/messenger-wm.md §4)
     ("filtered_bc", "oracle"): (1.17, 0.84, 0.80),
 }
 SPLITS = ("newcombo-test", "newattr-test", "newall-test")
+BUDGET_OPTIONS = ("iterations", "episodes", "grad_steps", "lr", "plans_per_start", "overlap")
+RECORD_KEYS = ("setting", "model", "split", "game", "return", "learn_seconds")
 
 
-def add_arguments(p: argparse.ArgumentParser) -> None:
+def register(agent_subparsers: argparse._SubParsersAction) -> None:
+    p = agent_subparsers.add_parser(
+        "table3",
+        help="the paper's Table 3 on N test games per split",
+        description="Learn in imagination on N test games per split and act in the real games.",
+        arguments=add_arguments,
+    )
+    p.set_defaults(func=run_table3)
+
+
+def add_arguments(p: LwmParser) -> None:
+    from ..agent.learning import Budget
+
     p.add_argument("--data", type=Path, required=True, help="dataset directory (test games and their manuals)")
-    p.add_argument("--games", type=int, default=30, help="test games per split (the paper: 30)")
-    p.add_argument("--splits", nargs="+", default=list(SPLITS))
+    p.add_argument("--games", type=positive_int, default=30, help="test games per split (the paper: 30)")
+    p.add_argument(
+        "--splits", nargs="+", choices=ALL_SPLITS, default=list(SPLITS), metavar="SPLIT", help="splits of the games"
+    )
     p.add_argument(
         "--models",
         nargs="+",
         default=None,
+        metavar="NAME=CHECKPOINT",
         help="NAME=CHECKPOINT pairs (default: the shipped emma, observational and oracle)",
     )
     p.add_argument(
@@ -46,20 +56,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         nargs="+",
         default=["online_il", "filtered_bc"],
         choices=["online_il", "filtered_bc", "warm_start"],
+        metavar="SETTING",
+        help="how the agent learns: online imitation, filtered behaviour cloning, or the warm-start policy alone",
     )
     p.add_argument("--policy", type=Path, default=None, help="warm-start policy (default: shipped, else untrained)")
-    p.add_argument("--iterations", type=int, default=Budget.iterations, help="online imitation: imagination rounds")
-    p.add_argument("--episodes", type=int, default=Budget.episodes, help="imagined episodes per round")
-    p.add_argument("--grad-steps", type=int, default=Budget.grad_steps, help="minibatch steps per round")
-    p.add_argument("--lr", type=float, default=Budget.lr)
-    p.add_argument(
-        "--overlap",
-        action="store_true",
-        help="online imitation: imagine the next round while learning from the last (the review loop's default)",
+    checks = {"iterations": positive_int, "episodes": positive_int, "grad_steps": positive_int}
+    checks |= {"lr": positive_float, "plans_per_start": positive_int}
+    add_dataclass_arguments(
+        p, Budget, only=BUDGET_OPTIONS, extra={name: {"type": check} for name, check in checks.items()}
     )
-    p.add_argument("--plans-per-start", type=int, default=Budget.plans_per_start, help="filtered BC: expert plans")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--threads", type=int, default=0, help="torch threads (0: torch's default)")
+    p.add_argument("--seed", type=nonnegative_int, default=0, help="seed of game g is this + g")
+    p.add_argument("--threads", type=nonnegative_int, default=0, help="torch threads (0: torch's default)")
     p.add_argument("--out", type=Path, default=None, help="write the table as JSON")
     p.add_argument(
         "--records",
@@ -69,10 +76,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "(resume, or split the work over processes and merge the files with --from-records)",
     )
     p.add_argument("--from-records", type=Path, nargs="+", default=None, help="only print the table of these files")
-    p.add_argument("--no-progress", action="store_true")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
-def _budget(args: argparse.Namespace) -> Budget:
+def _budget(args: argparse.Namespace):
+    from ..agent.learning import Budget
+
     return Budget(
         iterations=args.iterations,
         episodes=args.episodes,
@@ -92,14 +101,19 @@ def _load_records(paths: list[Path]) -> list[dict]:
             if not line.strip():
                 continue
             try:
-                records.append(json.loads(line))
+                record = json.loads(line)
             except json.JSONDecodeError:
                 raise LwmError(f"{path}:{n}: not a JSON record") from None
+            if not isinstance(record, dict) or any(key not in record for key in RECORD_KEYS):
+                raise LwmError(f"{path}:{n}: not a Table 3 record (it needs {', '.join(RECORD_KEYS)})")
+            records.append(record)
     return records
 
 
 def table(records: list[dict]) -> dict:
     """Mean and 95% interval per (setting/model, split) over the recorded games."""
+    from ..agent.table3 import summarize
+
     rows: dict = {}
     for key in sorted({(r["setting"], r["model"]) for r in records}):
         row = rows.setdefault(f"{key[0]}/{key[1]}", {})
@@ -139,6 +153,19 @@ def run_table3(args: argparse.Namespace) -> int:
         if args.out:
             args.out.write_text(json.dumps({"rows": rows}, indent=2))
         return 0
+    if not args.data.is_dir():  # before the models load, which takes seconds
+        raise LwmError(f"no such dataset directory: {args.data}")
+
+    import torch
+    from tqdm import tqdm
+
+    from ..agent.policy import EmmaPolicy, load_policy
+    from ..agent.table3 import run_game
+    from ..data.dataset import TrajectoryDataset
+    from ..world.checkpoint import load_checkpoint
+    from ..world.frozen_text import FrozenTextEncoder
+    from ..world.shipped import SHIPPED, SHIPPED_ORACLE, SHIPPED_POLICY
+
     if args.threads:
         torch.set_num_threads(args.threads)
     models = {}
@@ -174,7 +201,7 @@ def run_table3(args: argparse.Namespace) -> int:
     records = []
     for split, game, g, manual, setting, name in tqdm(todo, desc="table 3", disable=args.no_progress):
         world, config = models[name]
-        result = run_game(setting, world, config["kind"], warm, game, manual, encoder, budget, args.seed + g)
+        result = run_game(setting, world, warm, game, manual, encoder, budget, args.seed + g)
         record = {"setting": setting, "model": name, "split": split, "game": g, "seed": args.seed + g, **result}
         record["budget"] = budget.__dict__
         records.append(record)

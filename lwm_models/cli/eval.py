@@ -5,26 +5,44 @@ from __future__ import annotations
 import argparse
 import json
 import time
+from pathlib import Path
 
-from .batches import SplitTokens, redraw_manuals
-from .checkpoint import load_checkpoint
-from .evaluate import evaluate_model, loss_by_prefix
-from .frozen_text import FrozenTextEncoder
-from .registry import NEEDS_TEXT
+from ..messenger.constants import SPLITS
+from .args import checkpoint_dir, existing_dir, nonnegative_int, positive_int
 
-
-def load_router(kind: str):
-    if kind != "gpthard":
-        return None
-    from ..text.parser import route_identity_id
-
-    return route_identity_id
+TEST_SPLITS = ["newcombo-test", "newattr-test", "newall-test"]
 
 
-def run_eval(args: argparse.Namespace) -> int:
+def register(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser("eval", help="evaluate a world model: cross-entropy and imagination metrics")
+    p.add_argument("--checkpoint", type=checkpoint_dir, required=True, help="checkpoint directory")
+    p.add_argument("--data", type=existing_dir, required=True, help="dataset directory")
+    p.add_argument(
+        "--splits", nargs="+", choices=SPLITS, default=TEST_SPLITS, metavar="SPLIT", help="splits to evaluate"
+    )
+    p.add_argument(
+        "--loss-episodes", type=positive_int, default=None, help="episodes per split for cross-entropy (default: all)"
+    )
+    p.add_argument(
+        "--imagination-episodes", type=nonnegative_int, default=200, help="episodes per split to imagine (0: skip)"
+    )
+    p.add_argument(
+        "--texts", nargs="+", default=None, metavar="PATH", help="re-draw the manuals from these description files"
+    )
+    p.add_argument("--seed", type=nonnegative_int, default=0, help="seed of the imagination and of re-drawn manuals")
+    p.add_argument("--out", type=Path, default=None, help="write the results as JSON here")
+    p.add_argument("--plot", type=Path, default=None, help="write loss against history length as PNG here")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..world.batches import SplitTokens, redraw_manuals
+    from ..world.checkpoint import load_checkpoint
+    from ..world.evaluate import evaluate_model, loss_by_prefix
+
     model, config = load_checkpoint(args.checkpoint)
     kind = config["kind"]
-    encoder = FrozenTextEncoder() if NEEDS_TEXT[kind] else None
+    encoder = model.frozen_text_encoder()
     pools = None
     if args.texts:
         from ..text import DescriptionPools
@@ -32,7 +50,7 @@ def run_eval(args: argparse.Namespace) -> int:
         pools = DescriptionPools.from_files(args.texts, seed=args.seed)
     splits = {}
     for name in args.splits:
-        data = SplitTokens(args.data, name, None if pools else encoder, load_router(kind))
+        data = SplitTokens(args.data, name, None if pools else encoder, model.route)
         if pools is not None:
             redraw_manuals(data, pools, encoder, args.seed)
         splits[name] = data

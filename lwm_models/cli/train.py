@@ -1,0 +1,71 @@
+"""`lwm train`: train a world model, or resume the run in its directory."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+
+from .args import (
+    LwmParser,
+    add_dataclass_arguments,
+    existing_dir,
+    fraction,
+    nonnegative_float,
+    nonnegative_int,
+    positive_float,
+    positive_int,
+)
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser(
+        "train",
+        help="train a world model (resumes when the run directory has one)",
+        description="Train a world model on a dataset; running it again resumes the run in --out.",
+        arguments=add_arguments,
+    )
+    p.set_defaults(func=run)
+
+
+def _dataset_dir(text: str) -> str:
+    return str(existing_dir(text))  # TrainArgs keeps paths as text: they are recorded in JSON
+
+
+def add_arguments(p: LwmParser) -> None:
+    from ..messenger.constants import SPLITS
+    from ..world.registry import KINDS, PRESETS
+    from ..world.train import TrainArgs
+
+    checks = {
+        "steps": positive_int,
+        "batch": positive_int,
+        "lr": positive_float,
+        "warmup": nonnegative_int,
+        "weight_decay": nonnegative_float,
+        "clip": positive_float,
+        "seed": nonnegative_int,
+        "eval_every": positive_int,
+        "eval_episodes": positive_int,
+        "attn_dropout": fraction,
+        "kv_heads": positive_int,
+        "threads": positive_int,
+        "max_minutes": positive_float,
+        "cpu_budget_minutes": positive_float,
+    }
+    extra = {name: {"type": check} for name, check in checks.items()}
+    extra["data"] = {"type": _dataset_dir, "metavar": "DIR"}
+    extra["out"] = {"metavar": "RUN"}
+    extra["kind"] = {"choices": list(KINDS)}
+    extra["preset"] = {"choices": list(PRESETS)}
+    extra["eval_split"] = {"choices": list(SPLITS), "metavar": "SPLIT"}
+    add_dataclass_arguments(p, TrainArgs, extra=extra)
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..world.train import TrainArgs, train
+
+    fields = {f.name for f in dataclasses.fields(TrainArgs)}
+    result = train(TrainArgs(**{k: v for k, v in vars(args).items() if k in fields}))
+    print(json.dumps(result))
+    return 0
