@@ -68,13 +68,20 @@ def test_odd_offset_collides_diagonally_and_not_from_the_left():
     assert (r, term) == (0.0, False)
 
 
-def test_fleeing_entity_at_the_edge_sometimes_stays_put():
-    outcomes = []
-    for seed in range(300):
-        env = make_env(enemy="fleeing", seed=seed)
-        place(env, avatar=(4, 10), enemy=(0, 10))
+def enemy_after_one_step(movement: str, avatar, enemy, seeds: int) -> list:
+    """Where an enemy of `movement` placed at `enemy` is after one step of an avatar that stays at
+    `avatar` (half cells), for episode seeds 0..seeds-1."""
+    where = []
+    for seed in range(seeds):
+        env = make_env(enemy=movement, seed=seed)
+        place(env, avatar=avatar, enemy=enemy)
         env.step(STAY)
-        outcomes.append(env.positions[ENEMY])
+        where.append(env.positions[ENEMY])
+    return where
+
+
+def test_fleeing_entity_at_the_edge_sometimes_stays_put():
+    outcomes = enemy_after_one_step("fleeing", avatar=(4, 10), enemy=(0, 10), seeds=300)
     counts = {p: outcomes.count(p) for p in set(outcomes)}
     # Up (off the board: undone), left and right increase the distance; down never does.
     assert set(counts) == {(0, 10), (0, 9), (0, 11)}
@@ -83,32 +90,18 @@ def test_fleeing_entity_at_the_edge_sometimes_stays_put():
 
 
 def test_fleeing_entity_in_a_corner_cannot_escape():
-    for seed in range(50):
-        env = make_env(enemy="fleeing", seed=seed)
-        place(env, avatar=(4, 4), enemy=(0, 0))
-        env.step(STAY)
-        assert env.positions[ENEMY] == (0, 0)
+    assert set(enemy_after_one_step("fleeing", avatar=(4, 4), enemy=(0, 0), seeds=50)) == {(0, 0)}
 
 
 def test_chaser_picks_uniformly_among_decreasing_directions():
-    moves = []
-    for seed in range(400):
-        env = make_env(enemy="chaser", seed=seed)
-        place(env, avatar=(8, 8), enemy=(0, 0))
-        env.step(STAY)
-        moves.append(env.positions[ENEMY])
+    moves = enemy_after_one_step("chaser", avatar=(8, 8), enemy=(0, 0), seeds=400)
     assert set(moves) == {(1, 0), (0, 1)}
     assert 150 < moves.count((1, 0)) < 250
 
 
 def test_chaser_with_no_decreasing_direction_moves_at_random():
     # On the avatar's position no move decreases the distance: uniform over all four directions.
-    moves = []
-    for seed in range(200):
-        env = make_env(enemy="chaser", seed=seed)
-        place(env, avatar=(10, 10), enemy=(10, 10))
-        env.step(STAY)
-        moves.append(env.positions[ENEMY])
+    moves = enemy_after_one_step("chaser", avatar=(10, 10), enemy=(10, 10), seeds=200)
     assert set(moves) == {(9, 10), (11, 10), (10, 9), (10, 11)}
     assert min(moves.count(m) for m in set(moves)) > 25
 
