@@ -9,7 +9,7 @@ episodes finish.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -94,7 +94,8 @@ class _Sampler:
     cond: object
     cache: object
     history: torch.Tensor | None
-    gen: torch.Generator
+    gens: list[torch.Generator]  # one random stream per group of trajectories
+    stream: np.ndarray  # [rows]: the stream of each running trajectory
     temperature: float
 
     def run(self, new_tokens: torch.Tensor) -> torch.Tensor:
@@ -106,10 +107,18 @@ class _Sampler:
 
     def sample(self, h: torch.Tensor, position: int) -> tuple[torch.Tensor, torch.Tensor]:
         probs = torch.softmax(self.model.next_token_logits(h, position).float() / self.temperature, dim=-1)
-        token = torch.multinomial(probs, 1, generator=self.gen).squeeze(1)
+        if len(self.gens) == 1:
+            token = torch.multinomial(probs, 1, generator=self.gens[0]).squeeze(1)
+        else:
+            token = torch.empty(len(probs), dtype=torch.long)
+            for s, gen in enumerate(self.gens):
+                rows = torch.from_numpy(np.flatnonzero(self.stream == s))
+                if len(rows):
+                    token[rows] = torch.multinomial(probs[rows], 1, generator=gen).squeeze(1)
         return token, probs.gather(1, token[:, None]).squeeze(1)
 
     def keep(self, idx: torch.Tensor) -> None:
+        self.stream = self.stream[idx.numpy()]
         self.cond = self.cond.index(idx)
         if self.cache is not None:
             self.cache.select(idx)
@@ -124,6 +133,10 @@ class Rollout:
 
     After `step`, the new observation of trajectory i is `observations[i, t]` for each i in the
     returned indices (those that were running), with `rewards`, `dones` and `token_probs` alike.
+
+    Sampling draws from one random stream seeded with `seed`, or, with `streams` [(count, seed),
+    ...], from one stream per consecutive group of trajectories: the simulator batches concurrent
+    requests that way, and each samples as if it had been imagined alone.
     """
 
     def __init__(
@@ -137,6 +150,7 @@ class Rollout:
         seed: int | None = None,
         use_cache: bool = True,
         stop_on_done: bool = True,
+        streams: Sequence[tuple[int, int]] | None = None,
     ) -> None:
         if max_steps < 1:
             raise ValueError(f"max_steps must be >= 1, got {max_steps}")
@@ -170,10 +184,15 @@ class Rollout:
         first_block[:, 0] = DUMMY_ACTION
         first_block[:, 1 : 1 + OBS_TOKENS] = obs_to_tokens(first)
         first_block[:, -2] = FIRST_REWARD_LABEL
-        gen = torch.Generator().manual_seed(seed if seed is not None else int(torch.randint(2**31, ()).item()))
+        if streams is None:
+            streams = [(n, seed if seed is not None else int(torch.randint(2**31, ()).item()))]
+        if sum(count for count, _ in streams) != n:
+            raise ValueError(f"the streams' counts must add up to {n}, got {[c for c, _ in streams]}")
+        gens = [torch.Generator().manual_seed(int(s)) for _, s in streams]
+        stream = np.repeat(np.arange(len(streams)), [count for count, _ in streams])
         tokens = torch.from_numpy(first_block)
         cache = model.new_cache(n) if use_cache else None
-        self._sampler = _Sampler(model, cond, cache, None if use_cache else tokens, gen, temperature)
+        self._sampler = _Sampler(model, cond, cache, None if use_cache else tokens, gens, stream, temperature)
         if use_cache:
             with torch.inference_mode():
                 model.hidden_states(tokens, cond, cache)
@@ -243,6 +262,7 @@ def imagine(
     seed: int | None = None,
     use_cache: bool = True,
     stop_on_done: bool = True,
+    streams: Sequence[tuple[int, int]] | None = None,
 ) -> Imagination:
     """Imagine `n` trajectories.
 
@@ -252,6 +272,7 @@ def imagine(
     use_cache: False recomputes the whole prefix at every token (for the speed benchmark only).
     stop_on_done: False keeps imagining past a sampled done (benchmarks use it for full-length
         trajectories).
+    streams: independent random streams per group of trajectories (see Rollout).
     """
     if (actions is None) == (policy is None):
         raise ValueError("give either an action sequence or a policy")
@@ -263,7 +284,7 @@ def imagine(
             raise ShapeError(f"actions must be [{n}, >= {max_steps}], got {actions.shape}")
         if ((actions < 0) | (actions >= NUM_ACTIONS)).any():
             raise ValueError(f"actions must be in 0..{NUM_ACTIONS - 1}")
-    rollout = Rollout(model, manual, first_obs, n, max_steps, temperature, seed, use_cache, stop_on_done)
+    rollout = Rollout(model, manual, first_obs, n, max_steps, temperature, seed, use_cache, stop_on_done, streams)
     while not rollout.finished:
         active, t = rollout.active, rollout.t + 1
         if policy is not None:

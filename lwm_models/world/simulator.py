@@ -19,7 +19,9 @@ from __future__ import annotations
 import itertools
 import json
 import os
+import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -69,6 +71,8 @@ class Simulator:
         self.max_sessions = max_sessions
         self.session_ttl = session_ttl
         self._ids = itertools.count(1)
+        # Requests are served from several threads (ImagineServer) while manuals arrive on another.
+        self.lock = threading.RLock()
         self._restore()
 
     @property
@@ -79,25 +83,31 @@ class Simulator:
     def set_manual(self, descriptions: list[str], source: str = "") -> tuple[int, bool]:
         """Replace the manual. Returns (version, changed): the same text again is not a new version
         (a latched manual is delivered again to a restarted node). A rejected manual changes nothing."""
-        if self.manual == list(descriptions) and self._batch is not None:
-            return self.manual_version, False
-        batch = self.model.read_manual(descriptions, self.encoder)
-        self.manual, self._batch = list(descriptions), batch
-        self.manual_version += 1
-        self.manual_source = source
-        self._save()
-        return self.manual_version, True
+        with self.lock:
+            if self.manual == list(descriptions) and self._batch is not None:
+                return self.manual_version, False
+            batch = self.model.read_manual(descriptions, self.encoder)
+            self.manual, self._batch = list(descriptions), batch
+            self.manual_version += 1
+            self.manual_source = source
+            self._save()
+            return self.manual_version, True
 
     def take_env_manual(self, descriptions: list[str], episode_id: str = "") -> tuple[int, bool]:
         """The environment's manual is the default: it replaces the manual when no person has
         given one, or when the game changed (a person's manual was about the previous game)."""
         game = episode_id.rsplit(":", 1)[0] if episode_id else ""
-        if self.manual_source not in ("", "env") and (not game or game == self.game):
-            return self.manual_version, False
-        self.game = game or self.game
-        return self.set_manual(descriptions, "env")
+        with self.lock:
+            if self.manual_source not in ("", "env") and (not game or game == self.game):
+                return self.manual_version, False
+            self.game = game or self.game
+            return self.set_manual(descriptions, "env")
 
     def status(self) -> dict:
+        with self.lock:
+            return self._status()
+
+    def _status(self) -> dict:
         out = {
             "node": "lwm_simulator",
             "ready": True,
@@ -141,7 +151,8 @@ class Simulator:
         states); raises LwmError for one it cannot serve."""
         op = request.get("op", "imagine")
         began = time.perf_counter()
-        out = {"open": self._open, "step": self._step, "close": self._close}.get(op, self.imagine)(request)
+        with self.lock:
+            out = {"open": self._open, "step": self._step, "close": self._close}.get(op, self.imagine)(request)
         out["seconds"] = round(time.perf_counter() - began, 4)
         return out
 
@@ -158,11 +169,58 @@ class Simulator:
         return np.asarray(request["observations"] if "observations" in request else [request["observation"]], np.uint8)
 
     def imagine(self, request: dict) -> dict:
-        """One-shot batched imagination (op `imagine`)."""
-        batch, manual, version = self._manual_for(request)
+        """One-shot imagination (op `imagine`)."""
+        return self.imagine_together([request])[0]
+
+    @staticmethod
+    def batch_key(request: dict) -> tuple | None:
+        """Requests with equal keys can be imagined in one batch (`imagine_together`); None for
+        one that cannot (a session op)."""
+        if request.get("op", "imagine") != "imagine":
+            return None
+        manual = tuple(request["manual"]) if "manual" in request else None
+        return (manual, int(request.get("max_steps", 32)), float(request.get("temperature", 1.0)))
+
+    def imagine_together(self, requests: list[dict]) -> list[dict]:
+        """One-shot requests with the same `batch_key`, imagined as one batch; each request
+        samples from its own seeded stream, so its answer is what it would get alone."""
+        with self.lock:
+            batch, manual, version = self._manual_for(requests[0])
+            max_steps = int(requests[0].get("max_steps", 32))
+            starts, actions, streams = [], [], []
+            for request in requests:
+                s, a = self._trajectories(request, max_steps)
+                starts.append(s)
+                actions.append(a)
+                streams.append((len(a), int(request.get("seed", 0))))
+            im = imagine(
+                self.model,
+                batch,
+                np.concatenate(starts),
+                n=sum(len(a) for a in actions),
+                actions=np.concatenate(actions),
+                max_steps=max_steps,
+                temperature=float(requests[0].get("temperature", 1.0)),
+                streams=streams,
+            )
+        trajectories = im.to_json()
+        out, lo = [], 0
+        for a in actions:
+            out.append(
+                {
+                    "ok": True,
+                    "model": self.model_name,
+                    "manual_version": version,
+                    "manual": manual,
+                    "trajectories": trajectories[lo : lo + len(a)],
+                }
+            )
+            lo += len(a)
+        return out
+
+    def _trajectories(self, request: dict, max_steps: int) -> tuple[np.ndarray, np.ndarray]:
+        """A one-shot request's start observation and actions per trajectory ([n, 4, 3], [n, max_steps])."""
         starts = self._starts(request)
-        max_steps = int(request.get("max_steps", 32))
-        seed = int(request.get("seed", 0))
         if "actions" in request:
             seqs = request["actions"]
             n = len(seqs)
@@ -171,27 +229,10 @@ class Simulator:
                 actions[i, : min(len(seq), max_steps)] = seq[:max_steps]
         else:
             n = int(request.get("n", len(starts)))
-            actions = np.random.default_rng(seed).integers(5, size=(n, max_steps))
+            actions = np.random.default_rng(int(request.get("seed", 0))).integers(5, size=(n, max_steps))
         if len(starts) not in (1, n):
             raise RequestError(f"give one start observation or one per trajectory ({n}), got {len(starts)}")
-        first = starts[0] if len(starts) == 1 else starts
-        im = imagine(
-            self.model,
-            batch,
-            first,
-            n=n,
-            actions=actions,
-            max_steps=max_steps,
-            seed=seed,
-            temperature=float(request.get("temperature", 1.0)),
-        )
-        return {
-            "ok": True,
-            "model": self.model_name,
-            "manual_version": version,
-            "manual": manual,
-            "trajectories": im.to_json(),
-        }
+        return np.broadcast_to(starts, (n, *starts.shape[1:])) if len(starts) == 1 else starts, actions
 
     def _open(self, request: dict) -> dict:
         self._expire()
@@ -269,11 +310,13 @@ def error_response(error: Exception) -> dict:
     return {"ok": False, "error": str(error)}
 
 
-def serve_json(sim: Simulator, text: str) -> tuple[str, Exception | None]:
+def serve_json(sim: Simulator, text: str, handle: Callable[[dict], dict] | None = None) -> tuple[str, Exception | None]:
     """What the service answers to a request string (a valid response, never an exception), and
-    the error when the request was refused, for the caller to report."""
+    the error when the request was refused, for the caller to report. `handle` (default
+    `sim.handle`) answers a valid request: the ImagineServer passes its batching one."""
     try:
-        return messages.dump("imagine_response", sim.handle(messages.parse("imagine_request", text))), None
+        request = messages.parse("imagine_request", text)
+        return messages.dump("imagine_response", (handle or sim.handle)(request)), None
     except Exception as exc:  # a bad request must never take the server down
         return messages.dump("imagine_response", error_response(exc)), exc
 

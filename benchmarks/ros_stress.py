@@ -1,0 +1,349 @@
+"""The system under load and abuse, on the real multi-process system (loopback only, bounded).
+
+    .venv/bin/python benchmarks/ros_stress.py load [--clients 8] [--calls 1000] [--baseline-calls 200]
+    .venv/bin/python benchmarks/ros_stress.py malformed [--payloads 10000]
+
+load: `/lwm/imagine` from one client process, then from N client processes at once (each call:
+one trajectory replaying 4 actions, padded with "stay" to 32 steps), against the launcher's
+system without a human (environment, simulator, planner). Prints calls/s and p50/p99 latency
+of both, their ratio (target: N=8 clients get >= 5x the calls/s of one, p99 < 1 s, 0 failures),
+and the latency of `/env/reset` probed during the load (the other nodes still answer).
+
+malformed: payloads that are not valid messages (invalid JSON, wrong types, 1 MB strings, deeply
+nested JSON, NaN, out-of-range and 10,000-step action lists, unicode) spread over every topic and
+service the nodes read, paced so that none is dropped by a queue. Target: 0 crashes (every node
+still running and answering), every payload reported on /lwm/errors (topics) or answered with an
+error (services), and the nodes' memory before and after.
+
+Each part starts its own system with a fresh ROS_DOMAIN_ID and stops it at the end.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import textwrap
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+
+os.environ.setdefault("ROS_DOMAIN_ID", str(100 + os.getpid() % 100))
+os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+
+ROOT = Path(__file__).resolve().parent.parent
+OBS = [[2, 2, 7], [10, 7, 2], [11, 7, 7], [15, 2, 2]]
+
+
+def imagine_request(i: int) -> dict:
+    return {"version": 1, "observation": OBS, "actions": [[i % 5, 3, 1, 4]], "max_steps": 32, "seed": i}
+
+
+# A client process: waits for the service and for the start time, makes its calls one after
+# another, prints one JSON line with its latencies and failures.
+CLIENT = textwrap.dedent(
+    r"""
+    import json, sys, time
+    import rclpy
+    from lwm_interfaces.srv import Json
+    from lwm_nodes.common import ros_environment
+    from lwm_nodes.ros_cli import BackgroundSpin
+    sys.path.insert(0, sys.argv[4])
+    from ros_stress import imagine_request
+    service, calls, start_at = sys.argv[1], int(sys.argv[2]), float(sys.argv[3])
+    ros_environment(); rclpy.init()
+    node = rclpy.create_node(f"stress_client_{int(time.time() * 1e6) % 10**9}")
+    spin = BackgroundSpin(node)
+    client = node.create_client(Json, service)
+    ok = client.wait_for_service(timeout_sec=60)
+    while time.time() < start_at:
+        time.sleep(0.005)
+    lat, fail, batched = [], 0, []
+    for i in range(calls if ok else 0):
+        text = json.dumps(imagine_request(i))
+        t = time.perf_counter()
+        res = client.call(Json.Request(request=text), timeout_sec=30)
+        lat.append(time.perf_counter() - t)
+        answer = json.loads(res.response) if res is not None else {"ok": False}
+        fail += not answer.get("ok")
+        batched.append(answer.get("batched", 1))
+    print(json.dumps({"latencies": lat, "failures": fail + (0 if ok else calls), "batched": batched}), flush=True)
+    spin.close(); node.destroy_node(); rclpy.try_shutdown()
+    """
+)
+
+
+class System:
+    """The launcher's system (no human) in a temporary directory, stopped on exit."""
+
+    def __init__(self, extra: list[str] | None = None) -> None:
+        self.dir = Path(tempfile.mkdtemp(prefix="lwm-stress-"))
+        cmd = [sys.executable, "-m", "lwm_nodes.launcher", "--no-human", "--quiet", "--max-restarts", "0"]
+        cmd += ["--log-dir", str(self.dir), "--ledger", str(self.dir / "ledger.sqlite"), *(extra or [])]
+        self.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, cwd=ROOT)
+        self.lines: list[str] = []
+        self.ready = threading.Event()
+        threading.Thread(target=self._pump, daemon=True).start()
+        if not self.ready.wait(180):
+            self.stop()
+            raise SystemExit(f"the system did not start: {''.join(self.lines[-20:])}")
+
+    def _pump(self) -> None:
+        for line in self.proc.stdout:
+            self.lines.append(line)
+            if "nodes ready" in line:
+                self.ready.set()
+
+    def node_pids(self) -> dict[str, int]:
+        """PID of each node process (the launcher's children), by node module."""
+        out = subprocess.run(["pgrep", "-P", str(self.proc.pid), "-a"], capture_output=True, text=True).stdout
+        pids = {}
+        for line in out.splitlines():
+            pid, _, cmd = line.partition(" ")
+            for name in ("env_node", "simulator_node", "planner_node", "human_node"):
+                if f"lwm_nodes.{name}" in cmd:
+                    pids[name.removesuffix("_node")] = int(pid)
+        return pids
+
+    def stop(self) -> int:
+        self.proc.send_signal(signal.SIGINT)
+        try:
+            return self.proc.wait(30)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            return self.proc.wait()
+
+
+def rss_mb(pid: int) -> float:
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1]) / 1024
+    return math.nan
+
+
+def run_clients(n: int, calls: int) -> tuple[list[float], int, float, list[int]]:
+    """n client processes making `calls` calls each, started together; (latencies, failures,
+    wall-clock seconds of the whole load, batch sizes)."""
+    start_at = time.time() + 8.0  # every client has discovered the service by then
+    procs = [
+        subprocess.Popen(
+            [sys.executable, "-c", CLIENT, "/lwm/imagine", str(calls), str(start_at), str(Path(__file__).parent)],
+            stdout=subprocess.PIPE,
+            text=True,
+        )
+        for _ in range(n)
+    ]
+    results = [json.loads(p.communicate(timeout=3600)[0].strip().splitlines()[-1]) for p in procs]
+    wall = time.time() - start_at
+    lat = [x for r in results for x in r["latencies"]]
+    return lat, sum(r["failures"] for r in results), wall, [b for r in results for b in r["batched"]]
+
+
+def probe_env(stop: threading.Event, out: list[float]) -> None:
+    """/env/reset from this process every 0.5 s while the load runs."""
+    import rclpy
+    from lwm_interfaces.srv import Json
+    from lwm_nodes.common import ros_environment
+    from lwm_nodes.ros_cli import BackgroundSpin
+
+    ros_environment()
+    rclpy.init()
+    node = rclpy.create_node("stress_probe")
+    spin = BackgroundSpin(node)
+    client = node.create_client(Json, "/env/reset")
+    client.wait_for_service(timeout_sec=60)
+    while not stop.wait(0.5):
+        t = time.perf_counter()
+        res = client.call(Json.Request(request=json.dumps({"seed": 0})), timeout_sec=10)
+        out.append(time.perf_counter() - t if res is not None and json.loads(res.response).get("ok") else math.inf)
+    spin.close()
+    node.destroy_node()
+    rclpy.try_shutdown()
+
+
+def pct(xs: list[float], q: float) -> float:
+    return float(np.percentile(np.asarray(xs) * 1000, q)) if xs else math.nan
+
+
+def cmd_load(args: argparse.Namespace) -> int:
+    system = System()
+    try:
+        lat1, fail1, wall1, _ = run_clients(1, args.baseline_calls)
+        probe: list[float] = []
+        stop = threading.Event()
+        prober = threading.Thread(target=probe_env, args=(stop, probe))
+        prober.start()
+        latn, failn, walln, batched = run_clients(args.clients, args.calls)
+        stop.set()
+        prober.join()
+    finally:
+        code = system.stop()
+    rate1, raten = len(lat1) / wall1, len(latn) / walln
+    print(
+        f"one client:  {len(lat1)} calls, {rate1:6.1f} calls/s, p50 {pct(lat1, 50):.0f} ms, p99 {pct(lat1, 99):.0f} ms"
+    )
+    print(
+        f"{args.clients} clients: {len(latn)} calls, {raten:6.1f} calls/s, p50 {pct(latn, 50):.0f} ms, "
+        f"p99 {pct(latn, 99):.0f} ms, failures {failn + fail1}; batch size mean {np.mean(batched):.1f}, "
+        f"max {max(batched)}"
+    )
+    print(
+        f"/env/reset during the load: {len(probe)} calls, p50 {pct(probe, 50):.0f} ms, max {max(probe) * 1000:.0f} ms"
+    )
+    ratio = raten / rate1
+    ok = ratio >= 5 and pct(latn, 99) < 1000 and failn + fail1 == 0 and all(math.isfinite(p) for p in probe)
+    print(
+        f"throughput ratio {ratio:.1f}x (target >= 5x), p99 {pct(latn, 99):.0f} ms (target < 1000 ms): "
+        f"{'met' if ok else 'NOT met'}; launcher exit {code}"
+    )
+    return 0 if ok else 1
+
+
+# ---------------------------------------------------------------------------------- malformed
+TOPICS = {  # what each node reads, and the message kind it expects
+    "/feedback/manual": "manual",
+    "/env/manual": "manual",
+    "/review/feedback": "review_feedback",
+    "/review/labels": "labels",
+    "/env/state": "state",
+    "/lwm/status": "status",
+}
+SERVICES = ("/lwm/imagine", "/env/reset", "/env/step")
+
+
+def malformed(i: int) -> str:
+    """The i-th bad payload (cycling through the kinds)."""
+    kinds = [
+        lambda: "{not json",
+        lambda: json.dumps({"version": 1, "descriptions": 42}),
+        lambda: json.dumps({"version": 1, "descriptions": ["x" * (1 << 20), "y", "z"]}),  # 1 MB
+        lambda: "[" * 10000 + "]" * 10000,
+        lambda: '{"version": 1, "observation": NaN, "actions": [[NaN]]}',
+        lambda: json.dumps({"version": 1, "observation": OBS, "actions": [[7, -1, 99]]}),
+        lambda: json.dumps({"version": 1, "observation": OBS, "actions": [[3] * 10000]}),
+        lambda: json.dumps({"version": 1, "descriptions": ["\u202e\u0000\ud7ff" * 3] * 3, "source": "\U0001f600"}),
+        lambda: json.dumps({"version": 99}),
+        lambda: json.dumps({"seed": "zero", "action": 1.5}),
+        lambda: "",
+        lambda: json.dumps([1, 2, 3]),
+    ]
+    return kinds[i % len(kinds)]()
+
+
+def cmd_malformed(args: argparse.Namespace) -> int:
+    import rclpy
+    from lwm_interfaces.srv import Json
+    from lwm_nodes.common import ERRORS_TOPIC, EVENTS, FEEDBACK, ros_environment
+    from lwm_nodes.ros_cli import BackgroundSpin
+    from rclpy.qos import QoSProfile
+    from std_msgs.msg import String
+
+    system = System()
+    human = subprocess.Popen(  # the human node reads the planner's topics; stdin closed: no typing
+        [sys.executable, "-m", "lwm_nodes.human_node"], stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, cwd=ROOT
+    )
+    topics = {**TOPICS, "/planner/plan": "plan", "/planner/label_request": "label_request", "/planner/report": "report"}
+    try:
+        ros_environment()
+        rclpy.init()
+        node = rclpy.create_node("stress_malformed")
+        spin = BackgroundSpin(node)
+        errors = []
+        lock = threading.Lock()
+
+        def on_error(msg: String) -> None:
+            with lock:
+                errors.append(json.loads(msg.data))
+
+        node.create_subscription(String, ERRORS_TOPIC, on_error, QoSProfile(depth=1000, reliability=EVENTS.reliability))
+        # Transient local, as the nodes' readers of these topics are (a volatile writer would not match).
+        pubs = {t: node.create_publisher(String, t, FEEDBACK) for t in topics}
+        clients = {s: node.create_client(Json, s) for s in SERVICES}
+        for c in clients.values():
+            c.wait_for_service(timeout_sec=60)
+        time.sleep(3)  # discovery of every subscriber
+        pids = {**system.node_pids(), "human": human.pid}
+        before = {name: rss_mb(pid) for name, pid in pids.items()}
+        targets = list(topics) + list(SERVICES)
+        sent_topics, expected, answered, service_ok = 0, 0, 0, 0
+        began = time.perf_counter()
+        for i in range(args.payloads):
+            target, text = targets[i % len(targets)], malformed(i // len(targets) + i)
+            if target in clients:
+                res = clients[target].call(Json.Request(request=text), timeout_sec=30)
+                answered += res is not None
+                service_ok += res is not None and json.loads(res.response).get("ok", False)
+            else:
+                pubs[target].publish(String(data=text))
+                sent_topics += 1
+                expected += pubs[target].get_subscription_count()  # each reading node reports it
+            if i % 25 == 24:  # pace: let the reports catch up, so that no queue drops a payload
+                deadline = time.monotonic() + 20
+                while time.monotonic() < deadline:
+                    with lock:
+                        if sum(e["where"] in topics for e in errors) >= expected:
+                            break
+                    time.sleep(0.01)
+        elapsed = time.perf_counter() - began
+        time.sleep(3)
+        after = {name: rss_mb(pid) for name, pid in pids.items()}
+        alive = {name: Path(f"/proc/{pid}").exists() for name, pid in pids.items()}
+        res = clients["/lwm/imagine"].call(Json.Request(request=json.dumps(imagine_request(0))), timeout_sec=30)
+        still_serving = res is not None and json.loads(res.response).get("ok")
+        spin.close()
+        node.destroy_node()
+        rclpy.try_shutdown()
+    finally:
+        human.send_signal(signal.SIGINT)
+        human.wait(20)
+        code = system.stop()
+    by_where: dict[str, int] = {}
+    for e in errors:
+        by_where[e["where"]] = by_where.get(e["where"], 0) + 1
+    reported_topics = sum(v for k, v in by_where.items() if k in topics)
+    print(
+        f"{args.payloads} malformed payloads in {elapsed:.0f} s: {sent_topics} on {len(topics)} topics, "
+        f"{args.payloads - sent_topics} to {len(SERVICES)} services"
+    )
+    print(
+        f"errors reported on {ERRORS_TOPIC}: {len(errors)}; for topic payloads {reported_topics} of {expected} "
+        f"expected (one per reading node); by where: {by_where}"
+    )
+    print(f"service calls answered {answered}/{args.payloads - sent_topics}, answered ok {service_ok}")
+    for name in pids:
+        print(f"  {name:<10} RSS {before[name]:7.1f} MB -> {after[name]:7.1f} MB, alive {alive[name]}")
+    ok = (
+        all(alive.values())
+        and still_serving
+        and answered == args.payloads - sent_topics
+        and service_ok == 0
+        and reported_topics == expected
+    )
+    print(f"nodes alive and serving: {'yes' if ok else 'NO'}; launcher exit {code}")
+    return 0 if ok else 1
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = parser.add_subparsers(dest="part", required=True)
+    p = sub.add_parser("load", help="8 clients against one: calls/s, latency, batching")
+    p.add_argument("--clients", type=int, default=8, help="concurrent client processes")
+    p.add_argument("--calls", type=int, default=1000, help="calls per client")
+    p.add_argument("--baseline-calls", type=int, default=200, help="calls of the lone client")
+    p.set_defaults(func=cmd_load)
+    p = sub.add_parser("malformed", help="bad payloads on every topic and service the nodes read")
+    p.add_argument("--payloads", type=int, default=10000, help="how many (spread over the targets)")
+    p.set_defaults(func=cmd_malformed)
+    args = parser.parse_args()
+    return args.func(args)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

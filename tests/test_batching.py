@@ -1,0 +1,132 @@
+"""Dynamic batching of /lwm/imagine (lwm_models.world.batching), with real threads and the shipped
+model: concurrent requests share batches and each gets the answer it would get alone."""
+
+from __future__ import annotations
+
+import json
+import threading
+import time
+
+import pytest
+import torch
+from game_fixtures import MANUAL, OBS
+
+from lwm_models.world.batching import ImagineServer, _Job
+from lwm_models.world.frozen_text import FrozenTextEncoder
+from lwm_models.world.simulator import Simulator
+
+
+@pytest.fixture(scope="module")
+def sim():
+    torch.set_num_threads(1)
+    s = Simulator(encoder=FrozenTextEncoder())
+    s.set_manual(MANUAL, "test")
+    return s
+
+
+def request(i: int, **extra) -> str:
+    actions = [[(i + k) % 5 for k in range(4)], [(2 * i + k) % 5 for k in range(6)]]
+    return json.dumps({"version": 1, "observation": OBS, "actions": actions, "max_steps": 8, "seed": i, **extra})
+
+
+def trajectories(answer: str) -> list[dict]:
+    return [
+        {k: t[k] for k in ("observations", "actions", "rewards", "dones")} for t in json.loads(answer)["trajectories"]
+    ]
+
+
+def test_concurrent_requests_share_batches_and_get_what_they_get_alone(sim):
+    alone = {i: sim.handle(json.loads(request(i))) for i in range(12)}
+    server = ImagineServer(sim)
+    answers: dict[int, str] = {}
+    gate = threading.Barrier(12)
+
+    def client(i: int) -> None:
+        gate.wait()
+        answers[i], error = server.serve(request(i))
+        assert error is None
+
+    threads = [threading.Thread(target=client, args=(i,)) for i in range(12)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(60)
+    server.close()
+    assert sorted(answers) == list(range(12))
+    for i, answer in answers.items():
+        got = json.loads(answer)
+        assert got["ok"] and got["manual_version"] == sim.manual_version
+        assert trajectories(answer) == trajectories(json.dumps(alone[i])), f"request {i} differs when batched"
+    # While the first batch ran the others queued: fewer batches than requests.
+    assert server.batched_requests == 12 and server.batches < 12
+    assert max(json.loads(a)["batched"] for a in answers.values()) > 1
+
+
+def test_a_bad_request_in_a_batch_fails_alone(sim):
+    server = ImagineServer(sim)
+    results: dict[str, tuple[str, Exception | None]] = {}
+    bad = json.dumps({"version": 1, "observations": [OBS, OBS], "n": 3, "max_steps": 4})  # 2 starts, 3 trajectories
+    gate = threading.Barrier(4)
+
+    def client(name: str, text: str) -> None:
+        gate.wait()
+        results[name] = server.serve(text)
+
+    jobs = [("bad", bad)] + [(f"good{i}", request(i)) for i in range(3)]
+    threads = [threading.Thread(target=client, args=job) for job in jobs]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(60)
+    server.close()
+    answer, error = results["bad"]
+    assert error is not None and not json.loads(answer)["ok"] and "one per trajectory" in json.loads(answer)["error"]
+    for i in range(3):
+        answer, error = results[f"good{i}"]
+        assert error is None and json.loads(answer)["ok"]
+
+
+def test_requests_that_cannot_share_a_batch_are_kept_apart(sim):
+    # Another time limit or temperature is another batch, and a batch stops at max_trajectories.
+    server = ImagineServer(sim, max_trajectories=5)
+    texts = [request(0), request(1, temperature=0.5), request(2), request(3, max_steps=4), request(4), request(5)]
+    jobs = [_Job(r, sim.batch_key(r)) for r in map(json.loads, texts)]
+    groups = [[job.request["seed"] for job in g] for g in server._batches(jobs)]
+    assert groups == [[0, 2], [4, 5], [1], [3]]  # two trajectories each: 0 and 2 fill 4 of 5
+    # Session ops are never queued: they are answered in the caller's thread.
+    opened, error = server.serve(json.dumps({"version": 1, "op": "open", "observation": OBS, "n": 1, "max_steps": 2}))
+    server.close()
+    assert error is None and json.loads(opened)["session"] and server.batches == 0
+
+
+def test_closing_answers_the_waiting_requests_at_once(sim):
+    # A node stopping under load: the batch being imagined finishes, the queued ones get an error
+    # now (not after their turn), and new ones are refused.
+    server = ImagineServer(sim)
+    results = []
+
+    def client(i: int) -> None:
+        results.append((i, *server.serve(request(i))))
+
+    with sim.lock:  # the worker blocks on its first batch (request 0) until the server is closed
+        threads = [threading.Thread(target=client, args=(0,))]
+        threads[0].start()
+        time.sleep(0.5)
+        threads += [threading.Thread(target=client, args=(i,)) for i in range(1, 6)]
+        for t in threads[1:]:
+            t.start()
+        time.sleep(0.5)  # requests 1-5 wait in the queue
+        closing = threading.Thread(target=server.close)
+        closing.start()
+        time.sleep(0.2)
+    began = time.perf_counter()
+    for t in threads:
+        t.join(10)
+    closing.join(10)
+    assert time.perf_counter() - began < 5 and len(results) == 6
+    answers = {i: (json.loads(text), error) for i, text, error in results}
+    assert answers[0][1] is None and answers[0][0]["ok"]  # the batch being imagined finishes
+    for i in range(1, 6):
+        assert answers[i][1] is not None and "shutting down" in answers[i][0]["error"]
+    text, error = server.serve(request(9))
+    assert error is not None and "shutting down" in json.loads(text)["error"]
