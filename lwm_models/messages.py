@@ -18,7 +18,7 @@ from .errors import LwmError
 from .messenger.observation import InvalidObservation, check_observation
 
 SCHEMA_DIR = Path(__file__).resolve().parent.parent / "msgs_json"
-VERSION = 1
+VERSION = 1  # the first version of every kind; a kind whose format changed has a higher one (`version`)
 
 
 class MessageError(LwmError, ValueError):
@@ -41,6 +41,12 @@ def validator(kind: str):
     draft 7, so the draft-7 compiler reads them as written."""
     compiled = {k: v for k, v in schema(kind).items() if k not in ("$schema", "examples")}
     return fastjsonschema.compile({**compiled, "$schema": "http://json-schema.org/draft-07/schema#"})
+
+
+def version(kind: str) -> int:
+    """The version a payload of this kind must carry: the schema's `version` constant. Kinds are
+    versioned one by one, so a change to one format does not touch the others' senders."""
+    return schema(kind)["properties"]["version"]["const"]
 
 
 def kinds() -> list[str]:
@@ -85,5 +91,5 @@ def parse(kind: str, text: str) -> dict:
 
 def dump(kind: str, payload: dict) -> str:
     """Validate and encode a payload (fills in the version when missing)."""
-    payload = {"version": VERSION, **payload}
+    payload = {"version": version(kind), **payload}
     return json.dumps(validate(kind, payload), separators=(",", ":"))

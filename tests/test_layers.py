@@ -10,9 +10,18 @@ import pytest
 
 CORE = Path(__file__).resolve().parent.parent / "lwm_models"
 # Lowest first. The game knows no text; text and the benchmark data build on the game; the message
-# formats and the review ledger on those; the world models on all of these; the agent on the world
-# models; the command line on everything.
-LAYERS = [{"errors"}, {"messenger"}, {"text"}, {"data"}, {"messages", "ledger"}, {"world"}, {"agent"}, {"cli"}]
+# formats, the review ledger and the feedback signatures on those; the world models on all of these;
+# the agent on the world models; the command line on everything.
+LAYERS = [
+    {"errors"},
+    {"messenger"},
+    {"text"},
+    {"data"},
+    {"messages", "ledger", "signing"},
+    {"world"},
+    {"agent"},
+    {"cli"},
+]
 LEVEL = {name: i for i, layer in enumerate(LAYERS) for name in layer}
 
 

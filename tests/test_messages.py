@@ -7,7 +7,7 @@ import json
 
 import pytest
 
-from lwm_models import messages
+from lwm_models import messages, signing
 
 KINDS = messages.kinds()
 
@@ -31,25 +31,46 @@ def test_every_payload_of_the_system_has_a_schema():
 @pytest.mark.parametrize("kind", KINDS)
 def test_schema_is_versioned_and_its_examples_validate(kind):
     schema = json.loads((messages.SCHEMA_DIR / f"{kind}.schema.json").read_text())
-    assert "version" in schema["required"] and schema["properties"]["version"]["const"] == messages.VERSION
+    assert "version" in schema["required"] and schema["properties"]["version"]["const"] == messages.version(kind)
+    assert messages.version(kind) >= messages.VERSION
     assert schema["examples"], "the README points readers to the schema's example"
     for example in schema["examples"]:
         assert messages.parse(kind, json.dumps(example)) == example
         wrong = copy.deepcopy(example)
-        wrong["version"] = 2
+        wrong["version"] = messages.version(kind) + 1
         with pytest.raises(messages.MessageError, match="version"):
             messages.validate(kind, wrong)
+
+
+SIGNED = {"review_feedback": 2, "labels": 2, "manual": 2}  # version 2 added the reviewer's signature
+
+
+def test_feedback_kinds_carry_a_signature_and_their_examples_are_really_signed():
+    """The examples' signatures are made with the documented example key (32 zero bytes)."""
+    keyring = signing.Keyring({"scripted": bytes(32), "terminal": bytes(32)})
+    for kind in KINDS:
+        props = messages.schema(kind)["properties"]
+        assert ("signature" in props) == (kind in SIGNED), kind
+        assert messages.version(kind) == SIGNED.get(kind, 1), kind
+    for kind in SIGNED:
+        examples = messages.schema(kind)["examples"]
+        signed = [e for e in examples if "signature" in e]
+        assert signed, f"{kind}: no signed example"
+        for example in signed:
+            assert keyring.verify(kind, example) == example["reviewer"]
+    # The environment's manual (/env/manual) is not signed: the environment node is trusted.
+    assert any(e.get("source") == "env" and "signature" not in e for e in messages.schema("manual")["examples"])
 
 
 def test_parse_and_dump_errors_name_the_problem():
     with pytest.raises(messages.MessageError, match="not JSON"):
         messages.parse("manual", "{nope")
     with pytest.raises(messages.MessageError, match="descriptions"):
-        messages.parse("manual", '{"version": 1, "descriptions": ["only one"]}')
+        messages.parse("manual", '{"version": 2, "descriptions": ["only one"]}')
     with pytest.raises(messages.MessageError, match="no schema"):
         messages.validate("telemetry", {})
     text = messages.dump("review_feedback", {"review_id": "r", "plan_id": 1, "decision": "approve"})
-    assert json.loads(text)["version"] == 1
+    assert json.loads(text)["version"] == 2
     with pytest.raises(messages.MessageError, match="decision"):
         messages.dump("review_feedback", {"review_id": "r", "plan_id": 1, "decision": "maybe"})
 

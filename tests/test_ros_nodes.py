@@ -84,6 +84,11 @@ def lwm_ros(system, *args: str, timeout: float = 60) -> subprocess.CompletedProc
     )
 
 
+def signed(system, reviewer: str = "terminal") -> list[str]:
+    """`lwm ros pub` options that sign as a reviewer of the launcher's key file."""
+    return ["--sign", reviewer, "--keys-file", str(system["tmp"] / "logs" / "reviewer_keys.json")]
+
+
 def call(system, service: str, payload: dict | str) -> dict:
     text = payload if isinstance(payload, str) else json.dumps(payload)
     proc = lwm_ros(system, "call", service, text, "--raw")
@@ -126,10 +131,11 @@ def test_imagine_uses_the_environment_manual_then_the_feedback(system):
         system,
         "pub",
         "/feedback/manual",
-        json.dumps({"version": 1, "descriptions": MANUAL, "source": "human"}),
+        json.dumps({"version": 2, "descriptions": MANUAL, "source": "human"}),
         "--latched",
         "--kind",
         "manual",
+        *signed(system),
     )
     assert pub.returncode == 0, pub.stderr
     st = wait_for(lambda: (s := status(system))["manual_source"] == "human" and s)
@@ -198,9 +204,9 @@ def test_malformed_payloads_get_errors_and_the_nodes_keep_serving(system):
     try:
         time.sleep(2.0)
         plan = latched(system, "/planner/plan")
-        base = {"version": 1, "review_id": plan["review_id"]}
+        base = {"version": 2, "review_id": plan["review_id"]}
         for topic, payload in [
-            ("/feedback/manual", '{"version": 1, "descriptions": ["just one"]}'),
+            ("/feedback/manual", '{"version": 2, "descriptions": ["just one"]}'),
             ("/env/manual", "{not json"),
             # Schema-valid, but no game state: the same entity in two channels.
             (
@@ -224,7 +230,7 @@ def test_malformed_payloads_get_errors_and_the_nodes_keep_serving(system):
                 "/review/feedback",
                 json.dumps(
                     {
-                        "version": 1,
+                        "version": 2,
                         "review_id": plan["review_id"],
                         "plan_id": plan["plan_id"],
                         "decision": "corrections",
@@ -234,7 +240,11 @@ def test_malformed_payloads_get_errors_and_the_nodes_keep_serving(system):
             ),
         ]:
             readers = {"/env/state": 2}.get(topic, 1)
-            assert lwm_ros(system, "pub", topic, payload, "--raw", "-w", str(readers), "--wait", "10").returncode == 0
+            # Feedback is signed, so that the planner refuses it for what it says, not for who sent it.
+            kind = {"/review/labels": "labels", "/review/feedback": "review_feedback"}.get(topic)
+            sign = ["--kind", kind, *signed(system)] if kind else []
+            sent = lwm_ros(system, "pub", topic, payload, "--raw", "-w", str(readers), "--wait", "10", *sign)
+            assert sent.returncode == 0, sent.stderr
         bad = call(system, "/lwm/imagine", "{not json")
         assert not bad["ok"] and "not JSON" in bad["error"]
         bad = call(system, "/env/reset", "[1, 2]")
@@ -264,13 +274,14 @@ def test_malformed_payloads_get_errors_and_the_nodes_keep_serving(system):
         plan = wait_for(lambda: (p := latched(system, "/planner/plan"))["review_id"].endswith(":3") and p, timeout=60)
         assert plan, "no plan for the reset episode"
         fix = {
-            "version": 1,
+            "version": 2,
             "review_id": plan["review_id"],
             "plan_id": plan["plan_id"],
             "decision": "corrections",
             "corrections": [{"step": 1, "action": (plan["actions"][0] + 1) % 5}],
         }
-        assert lwm_ros(system, "pub", "/review/feedback", json.dumps(fix), "--kind", "review_feedback").returncode == 0
+        sent = lwm_ros(system, "pub", "/review/feedback", json.dumps(fix), "--kind", "review_feedback", *signed(system))
+        assert sent.returncode == 0, sent.stderr
         revised = wait_for(
             lambda: (p := latched(system, "/planner/plan"))["plan_id"] > plan["plan_id"] and p, timeout=60
         )
@@ -307,9 +318,8 @@ MANUAL2 = [
 
 def test_manual_feedback_reaches_the_plan_under_review(system):
     before = latched(system, "/planner/plan")
-    pub = lwm_ros(
-        system, "pub", "/feedback/manual", json.dumps({"version": 1, "descriptions": MANUAL2}), "--kind", "manual"
-    )
+    manual = json.dumps({"version": 2, "descriptions": MANUAL2})
+    pub = lwm_ros(system, "pub", "/feedback/manual", manual, "--kind", "manual", *signed(system))
     assert pub.returncode == 0, pub.stderr
     st = wait_for(lambda: (s := status(system))["manual"] == MANUAL2 and s)
     assert st, "the simulator did not take the manual"
@@ -322,14 +332,15 @@ def test_manual_feedback_reaches_the_plan_under_review(system):
 
 def test_bad_labels_get_errors_and_change_nothing_then_a_fixed_resend_is_taken(system):
     plan = latched(system, "/planner/plan")
-    imitate = {**{k: plan[k] for k in ("review_id", "plan_id")}, "version": 1, "decision": "imitate", "rounds": 1}
-    assert lwm_ros(system, "pub", "/review/feedback", json.dumps(imitate), "--kind", "review_feedback").returncode == 0
+    imitate = {**{k: plan[k] for k in ("review_id", "plan_id")}, "version": 2, "decision": "imitate", "rounds": 1}
+    sent = lwm_ros(system, "pub", "/review/feedback", json.dumps(imitate), "--kind", "review_feedback", *signed(system))
+    assert sent.returncode == 0, sent.stderr
     request = wait_for(
         lambda: (r := latched(system, "/planner/label_request"))["review_id"] == plan["review_id"] and r, timeout=60
     )
     assert request, "no label request"
     n = len(request["observations"])
-    base = {"version": 1, "review_id": request["review_id"], "request_id": request["request_id"]}
+    base = {"version": 2, "review_id": request["review_id"], "request_id": request["request_id"]}
     errors = subprocess.Popen(
         [sys.executable, "-m", "lwm_models.cli.main", "ros", "echo", "/lwm/errors", "--timeout", "60"],
         stdout=subprocess.PIPE,
@@ -347,7 +358,10 @@ def test_bad_labels_get_errors_and_change_nothing_then_a_fixed_resend_is_taken(s
             ({**base, "states": [0], "actions": [7]}, "actions"),
         ]
         for payload, _ in bad:
-            assert lwm_ros(system, "pub", "/review/labels", json.dumps(payload), "--raw").returncode == 0
+            sent = lwm_ros(
+                system, "pub", "/review/labels", json.dumps(payload), "--raw", "--kind", "labels", *signed(system)
+            )
+            assert sent.returncode == 0, sent.stderr
         want = [why for _, why in bad]
 
         def seen():
@@ -357,7 +371,10 @@ def test_bad_labels_get_errors_and_change_nothing_then_a_fixed_resend_is_taken(s
         assert wait_for(seen, timeout=30), f"errors seen: {lines}"
         assert latched(system, "/planner/plan")["plan_id"] == plan["plan_id"]  # nothing changed
         fixed = {**base, "states": list(range(n)), "actions": [4] * n}
-        assert lwm_ros(system, "pub", "/review/labels", json.dumps(fixed), "--kind", "labels").returncode == 0
+        assert (
+            lwm_ros(system, "pub", "/review/labels", json.dumps(fixed), "--kind", "labels", *signed(system)).returncode
+            == 0
+        )
         revised = wait_for(lambda: (p := latched(system, "/planner/plan"))["plan_id"] > plan["plan_id"] and p, 90)
         assert revised and revised["reason"] == "imitation" and revised["learning"]["labelled"] >= n
     finally:
@@ -385,6 +402,69 @@ def test_a_killed_node_is_restarted(system):
     assert wait_for(lambda: Path(log).read_text().count("READY") >= 2, timeout=60)
     ok = call(system, "/lwm/imagine", {"version": 1, "observation": OBS, "manual": MANUAL, "n": 1, "max_steps": 2})
     assert ok["ok"]
+
+
+def test_only_a_trusted_reviewer_can_approve(system, tmp_path):
+    """Anyone on the ROS domain can publish on /review/feedback. An approval of the plan under
+    review that is unsigned, forged (signed with a key of the rogue's own under a trusted name) or
+    signed by a reviewer the planner does not trust is refused on /lwm/errors and approves
+    nothing; the same approval signed by a trusted reviewer is taken. The planner serves on."""
+    from lwm_models import signing
+    from lwm_models.ledger import Ledger
+
+    assert call(system, "/env/reset", {"seed": 11})["ok"]
+    plan = wait_for(lambda: (p := latched(system, "/planner/plan"))["review_id"].endswith(":11") and p, timeout=60)
+    assert plan, "no plan for the reset episode"
+    approve = {"version": 2, "review_id": plan["review_id"], "plan_id": plan["plan_id"], "decision": "approve"}
+    rogue_keys = tmp_path / "rogue_keys.json"  # the rogue's own keys, not the launcher's
+    signing.ensure_key_file(rogue_keys, ["mallory", "terminal"])
+    errors = subprocess.Popen(
+        [sys.executable, "-m", "lwm_models.cli.main", "ros", "echo", "/lwm/errors", "--timeout", "60"],
+        stdout=subprocess.PIPE,
+        text=True,
+        env=system["env"],
+    )
+    lines: list[str] = []
+    threading.Thread(target=lambda: lines.extend(errors.stdout), daemon=True).start()
+
+    def taken() -> list[dict]:
+        records = Ledger(system["tmp"] / "ledger.sqlite").history(plan["review_id"])
+        return [r["payload"] for r in records if r["kind"] in ("feedback", "report")]
+
+    try:
+        time.sleep(2.0)
+        rogues = [
+            ([], "unsigned review_feedback (no reviewer named)"),
+            (["--sign", "terminal", "--keys-file", str(rogue_keys)], "from reviewer 'terminal': bad signature"),
+            (["--sign", "mallory", "--keys-file", str(rogue_keys)], "reviewer 'mallory', who is not trusted"),
+        ]
+        for extra, _ in rogues:
+            sent = lwm_ros(system, "pub", "/review/feedback", json.dumps(approve), "--kind", "review_feedback", *extra)
+            assert sent.returncode == 0, sent.stderr
+
+        def refused() -> list[str]:
+            got = [json.loads(x) for x in list(lines) if x.strip()]
+            reasons = [r["error"] for r in got if (r["node"], r["where"]) == ("planner", "/review/feedback")]
+            return all(any(why in r for r in reasons) for _, why in rogues) and reasons
+
+        assert wait_for(refused, timeout=30), f"errors seen: {lines}"
+        assert all(
+            r.startswith(("UnsignedPayload: /review/feedback:", "BadSignature:", "UntrustedReviewer:"))
+            for r in refused()
+        )
+        assert taken() == [], "a refused approval reached the review"
+        assert latched(system, "/planner/plan")["plan_id"] == plan["plan_id"]  # still under review
+
+        sent = lwm_ros(
+            system, "pub", "/review/feedback", json.dumps(approve), "--kind", "review_feedback", *signed(system)
+        )
+        assert sent.returncode == 0, sent.stderr
+        feedback = wait_for(taken, timeout=30)
+        assert feedback and feedback[0]["decision"] == "approve" and feedback[0]["reviewer"] == "terminal"
+        assert feedback[0]["plan_id"] == plan["plan_id"] and len(feedback[0]["signature"]) == 64
+    finally:
+        errors.terminate()
+        errors.wait(timeout=30)
 
 
 def start_scripted(tmp_path: Path, domain_offset: int, *extra: str) -> tuple[subprocess.Popen, dict, Path]:

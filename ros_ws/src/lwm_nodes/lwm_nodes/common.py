@@ -11,7 +11,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 import rclpy
-from rclpy.executors import Executor, SingleThreadedExecutor
+from rclpy.executors import Executor, MultiThreadedExecutor, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
@@ -59,6 +59,10 @@ class JsonNode(Node):
         super().__init__(name)
         self._errors = self.create_publisher(String, ERRORS_TOPIC, EVENTS)
 
+    def close(self) -> None:
+        """Called on SIGINT/SIGTERM before the executor shuts down: a node whose callbacks may be
+        waiting (for a batch, a worker) releases them here, so that it exits within 2 s."""
+
     def declare_threads(self) -> int:
         """Parameter `threads` (default 1): torch's intra-op threads. The system's nodes share a
         few cores; torch's default (one thread per core) made every /lwm/imagine step about 20x
@@ -100,10 +104,13 @@ class JsonNode(Node):
         )
 
 
-def make_executor() -> Executor:
+def make_executor(threads: int = 1) -> Executor:
     """The executor every process of the system spins: rclpy's EventsExecutor (C++, event driven)
     unless LWM_EXECUTOR=single asks for the pure-Python SingleThreadedExecutor. The events one cut
-    the /lwm/imagine service overhead by about a third (benchmarks/ros_latency.py)."""
+    the /lwm/imagine service overhead by about a third (benchmarks/ros_latency.py). With `threads`
+    > 1, a MultiThreadedExecutor of that many threads."""
+    if threads > 1:
+        return MultiThreadedExecutor(num_threads=threads)
     choice = os.environ.get("LWM_EXECUTOR", "events")
     if choice == "events":
         from rclpy.experimental import EventsExecutor
@@ -114,8 +121,10 @@ def make_executor() -> Executor:
     raise ValueError(f"LWM_EXECUTOR must be 'events' or 'single', not {choice!r}")
 
 
-def run(make_node: Callable[[], Node], stop: threading.Event | None = None) -> int:
+def run(make_node: Callable[[], Node], stop: threading.Event | None = None, threads: int = 1) -> int:
     """Create the node, print READY, spin until SIGINT/SIGTERM, then shut down in order.
+    `threads` > 1 spins a MultiThreadedExecutor, for a node whose callbacks may wait on each other
+    (the simulator's service calls wait for their batch).
 
     rclpy's own signal handlers are off: they race with an early signal; an Event set by our
     handlers ends the spin loop instead (the pattern measured in shared/docs/ros2-from-pypi.md).
@@ -126,7 +135,7 @@ def run(make_node: Callable[[], Node], stop: threading.Event | None = None) -> i
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
     node = None
-    executor = make_executor()
+    executor = make_executor(threads)
     try:
         node = make_node()
         executor.add_node(node)
@@ -137,6 +146,8 @@ def run(make_node: Callable[[], Node], stop: threading.Event | None = None) -> i
         print(f"fatal: {type(exc).__name__}: {exc}", file=sys.stderr, flush=True)
         return 1
     finally:
+        if isinstance(node, JsonNode):
+            node.close()  # before the executor waits for running callbacks: let them end now
         executor.shutdown()
         if node is not None:
             node.destroy_node()

@@ -15,6 +15,8 @@ and never approves a plan whose shown trajectory dies; it prints a summary when 
 report arrives and exits. With language:=true its first answer in each review is language
 feedback: the true manual in other words, published on /feedback/manual (texts:= the description
 files to draw them from; default: the project's generator).
+Everything it publishes is signed as reviewer `reviewer` (default: scripted or terminal) with that
+reviewer's key from `keys_file` (lwm_nodes.trust); the planner and the simulator take nothing else.
 """
 
 from __future__ import annotations
@@ -33,6 +35,7 @@ from lwm_models.data.splits import load_split
 from lwm_models.messenger.constants import ACTION_NAMES
 from lwm_models.messenger.render import render_ascii
 from lwm_nodes.common import FEEDBACK, LATCHED, JsonNode, json_caller, run
+from lwm_nodes.trust import Signer
 
 
 class HumanNode(JsonNode):
@@ -56,9 +59,12 @@ class HumanNode(JsonNode):
         self.reviewer: ScriptedReviewer | None = None
         self.plan: dict | None = None
         self.request: dict | None = None
-        self.publish_feedback = self.json_publisher("/review/feedback", "review_feedback", FEEDBACK)
-        self.publish_labels = self.json_publisher("/review/labels", "labels", FEEDBACK)
-        self.publish_manual = self.json_publisher("/feedback/manual", "manual", LATCHED)
+        signer = Signer(self, "scripted" if self.scripted else "terminal")
+        self.publish_feedback = signer.publisher(
+            self.json_publisher("/review/feedback", "review_feedback", FEEDBACK), "review_feedback"
+        )
+        self.publish_labels = signer.publisher(self.json_publisher("/review/labels", "labels", FEEDBACK), "labels")
+        self.publish_manual = signer.publisher(self.json_publisher("/feedback/manual", "manual", LATCHED), "manual")
         self.imaginer = ServiceImaginer(
             json_caller(self, self.create_client(Json, "/lwm/imagine"), "imagine_response", 30.0)
         )
@@ -199,13 +205,12 @@ class HumanNode(JsonNode):
                     "request_id": self.request["request_id"],
                     "states": [int(s) for s, _ in pairs],
                     "actions": [int(a) for _, a in pairs],
-                    "reviewer": "terminal",
                 }
             )
             return
         if not line or self.plan is None:
             return
-        base = {"review_id": self.plan["review_id"], "plan_id": self.plan["plan_id"], "reviewer": "terminal"}
+        base = {"review_id": self.plan["review_id"], "plan_id": self.plan["plan_id"]}
         if line == "a":
             self.publish_feedback({**base, "decision": "approve"})
         elif line == "r":

@@ -3,6 +3,10 @@
 It starts each node as its own process, waits until each prints READY, prefixes and stores every
 node's output (logs/<node>.log), forwards SIGINT/SIGTERM to the nodes, restarts a node that dies
 (up to --max-restarts), and reports each node's exit code at the end.
+
+Before the nodes start, it makes sure the reviewers' key file exists (--keys-file, default
+LOG_DIR/reviewer_keys.json; created with random keys, mode 0600, if missing) and gives its path to
+the nodes that sign (the human node) or verify (the simulator and the planner).
 """
 
 from __future__ import annotations
@@ -17,6 +21,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from lwm_models import signing
 from lwm_nodes.common import ros_environment
 
 
@@ -91,9 +96,14 @@ def default_nodes(
     planner: dict[str, str] | None = None,
     reviewer: dict[str, str] | None = None,
     texts: list[str] | None = None,
+    keys_file: str = "",
+    trusted: str = "",
 ) -> list[NodeSpec]:
     """human: 'scripted', 'interactive' or 'none'. The planner loads no world model: only the
-    simulator gets the checkpoint."""
+    simulator gets the checkpoint. keys_file: the reviewers' keys; trusted: the reviewers the
+    simulator and the planner take feedback from (comma-separated; empty: all in the key file)."""
+    trust = {**({"keys_file": keys_file} if keys_file else {}), **({"trusted": trusted} if trusted else {})}
+    signs = {"keys_file": keys_file} if keys_file else {}
     nodes = [
         NodeSpec(
             "env",
@@ -103,18 +113,19 @@ def default_nodes(
         NodeSpec(
             "simulator",
             "lwm_nodes.simulator_node",
-            {**({"checkpoint": checkpoint} if checkpoint else {}), **({"state": state} if state else {})},
+            {**({"checkpoint": checkpoint} if checkpoint else {}), **({"state": state} if state else {}), **trust},
         ),
         NodeSpec(
             "planner",
             "lwm_nodes.planner_node",
-            {"ledger": ledger, **({"policy": policy} if policy else {}), **(planner or {})},
+            {"ledger": ledger, **({"policy": policy} if policy else {}), **(planner or {}), **trust},
         ),
     ]
     if human == "scripted":
-        nodes.append(NodeSpec("human", "lwm_nodes.human_node", {"scripted": "true", **(reviewer or {})}, final=True))
+        params = {"scripted": "true", **signs, **(reviewer or {})}
+        nodes.append(NodeSpec("human", "lwm_nodes.human_node", params, final=True))
     elif human == "interactive":
-        nodes.append(NodeSpec("human", "lwm_nodes.human_node", {}, interactive=True, final=True))
+        nodes.append(NodeSpec("human", "lwm_nodes.human_node", {**signs}, interactive=True, final=True))
     return nodes
 
 
@@ -202,6 +213,19 @@ def main(argv: list[str] | None = None) -> int:
         help="the simulator's manual and version, kept across restarts (default: LOG_DIR/simulator_state.json)",
     )
     parser.add_argument(
+        "--keys-file",
+        type=Path,
+        default=None,
+        help="the reviewers' keys (JSON, mode 0600), created with random keys if missing; keep it out of git "
+        "(default: LOG_DIR/reviewer_keys.json)",
+    )
+    parser.add_argument(
+        "--trusted",
+        default="",
+        help="comma-separated reviewer ids the planner and simulator take feedback from (default: every reviewer "
+        "in the key file)",
+    )
+    parser.add_argument(
         "--iterations", type=int, default=None, help="online-imitation rounds per teaching (default 40, Table 3's)"
     )
     parser.add_argument("--futures", type=int, default=None, help="sampled futures shown with each plan (default 8)")
@@ -244,6 +268,15 @@ def main(argv: list[str] | None = None) -> int:
     if args.language:
         reviewer.update({"language": "true", **({"texts": ",".join(args.texts)} if args.texts else {})})
     state = args.state if args.state is not None else str(args.log_dir / "simulator_state.json")
+    keys_file = args.keys_file if args.keys_file is not None else args.log_dir / "reviewer_keys.json"
+    # A new file gets both reviewers; an existing one (perhaps shared across hosts) only gains the
+    # one this launch's human node signs as.
+    needed = {"scripted": ["scripted"], "interactive": ["terminal"]}.get(human, [])
+    try:
+        keys = signing.ensure_key_file(keys_file, needed if keys_file.exists() else signing.DEFAULT_REVIEWERS)
+    except (OSError, signing.SigningError) as exc:
+        parser.error(str(exc))
+    print(f"launcher: reviewer keys for {', '.join(sorted(keys))} in {keys_file}", flush=True)
     nodes = default_nodes(
         args.checkpoint,
         args.split,
@@ -256,6 +289,8 @@ def main(argv: list[str] | None = None) -> int:
         planner,
         reviewer,
         args.texts,
+        str(keys_file),
+        args.trusted,
     )
     echo = not args.quiet and human != "interactive"  # a person reads the human node's screen
     return supervise(nodes, args.log_dir, args.ready_timeout, args.max_restarts, echo, args.run_for)

@@ -6,6 +6,10 @@ version on /lwm/status (a new version re-plans), opens a review for each fresh e
 /env/state, publishes plans (/planner/plan), label requests (/planner/label_request) and execution
 reports (/planner/report), takes /review/feedback and /review/labels, and acts in the real game
 through /env/reset and /env/step, closed loop, only after approval.
+
+Feedback and labels are taken only when signed by a reviewer the planner trusts (parameters
+`keys_file`, `trusted`; lwm_nodes.trust): anything else is reported on /lwm/errors and changes
+nothing.
 """
 
 from __future__ import annotations
@@ -22,6 +26,7 @@ from lwm_models.ledger import Ledger
 from lwm_models.world.frozen_text import FrozenTextEncoder
 from lwm_models.world.shipped import SHIPPED_POLICY
 from lwm_nodes.common import FEEDBACK, LATCHED, JsonNode, json_caller, run
+from lwm_nodes.trust import declare_keyring, verified
 
 
 class PlannerNode(JsonNode):
@@ -29,6 +34,7 @@ class PlannerNode(JsonNode):
         super().__init__("planner")
         p = self.declare_parameter
         self.declare_threads()
+        keyring = declare_keyring(self)  # first: a bad key file stops the node before the models load
         self.policy_dir = p("policy", "").value
         ledger = p("ledger", "logs/ledger.sqlite").value
         call_timeout = float(p("call_timeout", 30.0).value)
@@ -62,8 +68,10 @@ class PlannerNode(JsonNode):
         self.loop = ReviewLoop(self.make_policy, encoder, self.imaginer, ports, Ledger(ledger), config)
         self.json_subscription("/lwm/status", "status", self.loop.on_status, LATCHED)
         self.json_subscription("/env/state", "state", self.loop.on_state, LATCHED)
-        self.json_subscription("/review/feedback", "review_feedback", self.loop.on_feedback, FEEDBACK)
-        self.json_subscription("/review/labels", "labels", self.loop.on_labels, FEEDBACK)
+        on_feedback = verified(keyring, "review_feedback", "/review/feedback", self.loop.on_feedback)
+        self.json_subscription("/review/feedback", "review_feedback", on_feedback, FEEDBACK)
+        on_labels = verified(keyring, "labels", "/review/labels", self.loop.on_labels)
+        self.json_subscription("/review/labels", "labels", on_labels, FEEDBACK)
 
     def make_policy(self) -> EmmaPolicy:
         if self.policy_dir:

@@ -1,9 +1,10 @@
 """`lwm ros ...`: what ROS users do with the `ros2` command, which PyPI's ROS 2 does not ship.
 
     lwm ros nodes | topics | services
-    lwm ros pub TOPIC JSON|@FILE [--kind manual] [--volatile] [--wait 1.0] [-w N]
+    lwm ros pub TOPIC JSON|@FILE [--kind manual] [--sign REVIEWER [--keys-file FILE]] [--volatile] [--wait 1.0] [-w N]
     lwm ros echo TOPIC [--count N] [--timeout S] [--latched]
     lwm ros call SERVICE JSON|@FILE [--timeout S]
+    lwm ros keys [--keys-file FILE] [--reviewer ID ...]
 
 Discovery stays on this machine unless ROS_AUTOMATIC_DISCOVERY_RANGE says otherwise.
 
@@ -22,6 +23,8 @@ import threading
 import time
 from pathlib import Path
 from typing import TYPE_CHECKING
+
+from lwm_models.signing import DEFAULT_KEY_FILE as DEFAULT_KEYS  # stdlib only: cheap on every `lwm` run
 
 if TYPE_CHECKING:
     from rclpy.node import Node
@@ -78,7 +81,9 @@ def cmd_pub(node: Node, args) -> int:
     from lwm_nodes.common import EVENTS, LATCHED
 
     text = _payload(args.payload, args.raw)
-    if args.kind:
+    if args.sign:
+        text = _signed(args)
+    if args.kind and not (args.raw and args.sign):
         messages.parse(args.kind, text)
     # A transient-local writer matches both volatile and transient-local readers (a volatile one
     # would not reach the system's latched subscriptions such as /feedback/manual).
@@ -90,6 +95,34 @@ def cmd_pub(node: Node, args) -> int:
     # Reliable delivery needs the publisher alive until every reader has acknowledged the sample.
     pub.wait_for_all_acked(Duration(seconds=max(args.wait, 0.5)))
     print(f"published to {args.topic} ({pub.get_subscription_count()} subscriber(s))")
+    return 0
+
+
+def _signed(args) -> str:
+    """The payload signed as reviewer args.sign with its key from the key file (the version filled
+    in first, since the signature covers it). With --raw it is signed but not validated, to show
+    a node refusing a signed payload for what it says."""
+    from lwm_models import messages, signing
+
+    if not args.kind:
+        raise ValueError("--sign needs --kind: the signature covers the message kind")
+    payload = json.loads(_payload(args.payload))
+    if not isinstance(payload, dict):
+        raise ValueError("only a JSON object can be signed")
+    key = signing.load_keys(args.keys_file).get(args.sign)
+    if key is None:
+        fix = f"lwm ros keys --keys-file {args.keys_file} --reviewer {args.sign}"
+        raise ValueError(f"reviewer {args.sign!r} has no key in {args.keys_file} (add one: {fix})")
+    payload = signing.sign(args.kind, {"version": messages.version(args.kind), **payload}, args.sign, key)
+    return json.dumps(payload)
+
+
+def cmd_keys(args) -> int:
+    """Create the key file, or add reviewers to it; prints who has a key, never the keys."""
+    from lwm_models import signing
+
+    keys = signing.ensure_key_file(args.keys_file, args.reviewer or signing.DEFAULT_REVIEWERS)
+    print(f"{args.keys_file}: keys for {', '.join(sorted(keys))}")
     return 0
 
 
@@ -128,7 +161,7 @@ def cmd_call(node: Node, args) -> int:
     return 0
 
 
-HELP = "ROS 2 graph tools: nodes, topics, services, pub, echo, call"
+HELP = "ROS 2 graph tools: nodes, topics, services, pub, echo, call, keys"
 DESCRIPTION = "ROS 2 graph tools for the LWM system"
 
 
@@ -153,6 +186,22 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="publish once N subscribers are matched (or --wait has passed), as `ros2 topic pub -w N`",
     )
     s.add_argument("--raw", action="store_true", help="send the text as it is, even if it is not JSON")
+    s.add_argument(
+        "--sign",
+        metavar="REVIEWER",
+        default=None,
+        help="sign as this reviewer (adds reviewer and signature; needs --kind): the planner and the simulator "
+        "take feedback only from reviewers they trust",
+    )
+    s.add_argument("--keys-file", type=Path, default=DEFAULT_KEYS, help="the reviewers' keys (default: %(default)s)")
+    s = sub.add_parser("keys", help="create the reviewers' key file, or add reviewers to it")
+    s.add_argument("--keys-file", type=Path, default=DEFAULT_KEYS, help="the key file (default: %(default)s)")
+    s.add_argument(
+        "--reviewer",
+        nargs="+",
+        default=None,
+        help="reviewer ids that must have a key (default: scripted terminal); existing keys are kept",
+    )
     s = sub.add_parser("echo", help="print the messages of a topic")
     s.add_argument("topic", help="topic name, e.g. /lwm/status")
     s.add_argument("--count", type=int, default=0, help="stop after N messages (0: until timeout)")
@@ -195,8 +244,14 @@ def run(args: argparse.Namespace) -> int:
     except ImportError as exc:  # lwm_nodes is installed, but not ROS 2 itself
         print(f"lwm ros: error: ROS 2 is not available ({exc}); run ./run_nodes.sh once", file=sys.stderr)
         return 2
-    from lwm_models import messages
+    from lwm_models import messages, signing
 
+    if args.cmd == "keys":  # no ROS needed
+        try:
+            return cmd_keys(args)
+        except (OSError, signing.SigningError) as exc:
+            print(f"lwm ros: error: {exc}", file=sys.stderr)
+            return 2
     ros_environment()
     # rclpy's handlers would shut the context down under the spinning thread; SIGINT and SIGTERM
     # end the command through KeyboardInterrupt instead, so the node is torn down in order.
@@ -208,7 +263,7 @@ def run(args: argparse.Namespace) -> int:
         if args.cmd in ("nodes", "topics", "services"):
             return cmd_graph(node, args.cmd, args.settle)
         return {"pub": cmd_pub, "echo": cmd_echo, "call": cmd_call}[args.cmd](node, args)
-    except (OSError, ValueError, messages.MessageError) as exc:
+    except (OSError, ValueError, messages.MessageError, signing.SigningError) as exc:
         print(f"lwm ros: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

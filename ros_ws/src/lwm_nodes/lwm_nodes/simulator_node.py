@@ -5,14 +5,22 @@ It holds the model, the current manual and its version (lwm_models.world.simulat
 environment's manual (/env/manual) is the default for each new game. /lwm/status (latched) says
 which manual version is current, so the planner re-plans when it changes. The manual and its
 version survive a restart (parameter `state`).
+
+Concurrent /lwm/imagine calls are served by a pool of executor threads and imagined in batches
+(lwm_models.world.batching): SERVICE_THREADS bounds how many calls wait at once.
 """
 
 from __future__ import annotations
 
 from lwm_interfaces.srv import Json
+from rclpy.callback_groups import ReentrantCallbackGroup
 
-from lwm_models.world.simulator import Simulator, serve_json
+from lwm_models.world.batching import ImagineServer
+from lwm_models.world.simulator import Simulator
 from lwm_nodes.common import LATCHED, JsonNode, run
+from lwm_nodes.trust import declare_keyring, verified
+
+SERVICE_THREADS = 16  # executor threads of the node: calls that can wait for a batch at once
 
 
 class SimulatorNode(JsonNode):
@@ -29,9 +37,12 @@ class SimulatorNode(JsonNode):
             # of a language feedback's time to the revised plan, measured).
             self.sim.encoder.load()
         self.publish_status = self.json_publisher("/lwm/status", "status", LATCHED)
-        self.json_subscription("/feedback/manual", "manual", self.on_feedback, LATCHED)
+        # A manual from a person counts only if a reviewer it trusts signed it (keys_file, trusted).
+        on_feedback = verified(declare_keyring(self), "manual", "/feedback/manual", self.on_feedback)
+        self.json_subscription("/feedback/manual", "manual", on_feedback, LATCHED)
         self.json_subscription("/env/manual", "manual", self.on_env_manual, LATCHED)
-        self.create_service(Json, "/lwm/imagine", self.on_imagine)
+        self.server = ImagineServer(self.sim, int(self.declare_parameter("max_batch_trajectories", 256).value))
+        self.create_service(Json, "/lwm/imagine", self.on_imagine, callback_group=ReentrantCallbackGroup())
         self.publish_status(self.sim.status())
         self.get_logger().info(
             f"model {self.sim.model_name} from {self.sim.checkpoint}; manual v{self.sim.manual_version}"
@@ -51,15 +62,18 @@ class SimulatorNode(JsonNode):
             self.get_logger().info(f"manual version {version} from the environment ({self.sim.game})")
             self.publish_status(self.sim.status())
 
+    def close(self) -> None:
+        self.server.close()
+
     def on_imagine(self, req, res):
-        res.response, error = serve_json(self.sim, req.request)
+        res.response, error = self.server.serve(req.request)
         if error is not None:
             self.report_error("/lwm/imagine", error, req.request)
         return res
 
 
 def main() -> int:
-    return run(SimulatorNode)
+    return run(SimulatorNode, threads=SERVICE_THREADS)
 
 
 if __name__ == "__main__":

@@ -1,0 +1,81 @@
+"""Reviewer signatures in the nodes: parameters and thin adapters over lwm_models.signing.
+
+A node that learns from feedback (planner: /review/feedback and /review/labels; simulator:
+/feedback/manual) declares `keys_file` and `trusted` and takes a payload only if a trusted
+reviewer signed it; the human-feedback node declares `keys_file` and `reviewer` and signs what it
+publishes.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+
+from rclpy.node import Node
+
+from lwm_models import messages, signing
+
+
+def _keys_file(node: Node) -> Path:
+    # The launcher passes its key file; a node started by hand looks where the launcher's default is.
+    return Path(node.declare_parameter("keys_file", str(signing.DEFAULT_KEY_FILE)).value)
+
+
+def declare_keyring(node: Node) -> signing.Keyring:
+    """Parameters `keys_file` and `trusted` (comma-separated reviewer ids; empty: every reviewer in
+    the key file). Without a key file the node trusts no one (it still serves; every feedback is
+    refused and reported); a malformed or world-readable key file, or a trusted id without a key,
+    stops the node at start."""
+    path = _keys_file(node)
+    trusted = [r.strip() for r in node.declare_parameter("trusted", "").value.split(",") if r.strip()]
+    if path.exists() or trusted:
+        keyring = signing.Keyring(signing.load_keys(path), str(path))
+        keyring = keyring.only(trusted) if trusted else keyring
+        node.get_logger().info(f"trusted reviewers: {', '.join(sorted(keyring.keys)) or 'none'} (keys in {path})")
+        return keyring
+    node.get_logger().warning(f"no key file at {path}: this node trusts no reviewer and refuses all feedback")
+    return signing.Keyring({}, f"{path} (missing)")
+
+
+def verified(
+    keyring: signing.Keyring, kind: str, topic: str, handler: Callable[[dict], None]
+) -> Callable[[dict], None]:
+    """The handler, called only for payloads a trusted reviewer signed; anything else raises a
+    SigningError that names the reviewer, the topic and the reason (JsonNode reports it on
+    /lwm/errors and the handler never sees the payload)."""
+
+    def check(payload: dict) -> None:
+        keyring.verify(kind, payload, topic)
+        handler(payload)
+
+    return check
+
+
+class Signer:
+    """Signs payloads as one reviewer. A node without its key still starts (it may only display);
+    publishing then fails with the reason."""
+
+    def __init__(self, node: Node, default_reviewer: str) -> None:
+        path = _keys_file(node)
+        self.reviewer = signing.check_reviewer_id(node.declare_parameter("reviewer", default_reviewer).value)
+        self.key: bytes | None = None
+        self.problem = ""
+        try:
+            self.key = signing.load_keys(path).get(self.reviewer)
+            if self.key is None:
+                self.problem = f"reviewer {self.reviewer!r} has no key in {path}"
+        except signing.KeyFileError as exc:
+            self.problem = str(exc)
+        if self.key is None:
+            node.get_logger().warning(f"cannot sign: {self.problem}; the planner will refuse this node's feedback")
+        else:
+            node.get_logger().info(f"signing as reviewer {self.reviewer!r} (key in {path})")
+
+    def sign(self, kind: str, payload: dict) -> dict:
+        if self.key is None:
+            raise signing.SigningError(f"not signed: {self.problem}")
+        # The version is part of what is signed, so it is set before signing.
+        return signing.sign(kind, {"version": messages.version(kind), **payload}, self.reviewer, self.key)
+
+    def publisher(self, publish: Callable[[dict], None], kind: str) -> Callable[[dict], None]:
+        return lambda payload: publish(self.sign(kind, payload))
