@@ -178,18 +178,26 @@ def supervise(
                 )
                 p.start()
         time.sleep(0.2)
+    stopping = time.monotonic()
     for p in procs:
         p.signal(signal.SIGTERM)
-    deadline = time.monotonic() + 10
+    exits: dict[str, tuple[int, float]] = {}  # each node's exit code and seconds after SIGTERM
+    while len(exits) < len(procs) and time.monotonic() - stopping < 10:
+        for p in procs:
+            if p.spec.name not in exits and (code := p.proc.poll()) is not None:
+                exits[p.spec.name] = (code, time.monotonic() - stopping)
+        time.sleep(0.02)
     worst = 0
     for p in procs:
-        try:
-            code = p.proc.wait(max(0.1, deadline - time.monotonic()))
-        except subprocess.TimeoutExpired:
+        if p.spec.name not in exits:
             p.proc.kill()
-            code = p.proc.wait()
+            exits[p.spec.name] = (p.proc.wait(), time.monotonic() - stopping)
+        code, took = exits[p.spec.name]
         p.exit_codes.append(code)
-        print(f"launcher: {p.spec.name} exit code {code} (restarts: {p.restarts})", flush=True)
+        print(
+            f"launcher: {p.spec.name} exit code {code} (restarts: {p.restarts}), {took:.2f} s after SIGTERM",
+            flush=True,
+        )
         worst = worst or (code if code not in (0, -signal.SIGTERM) else 0)
     return worst
 
@@ -251,6 +259,12 @@ def main(argv: list[str] | None = None) -> int:
         help="scripted: the reviewer's first answer is language feedback, the true manual in other words",
     )
     parser.add_argument("--show-frames", action="store_true", help="the scripted reviewer prints every plan's frames")
+    parser.add_argument(
+        "--only",
+        default="",
+        help="comma-separated nodes to start here (env, simulator, planner, human), the others running on "
+        "another host of the same ROS domain (default: all)",
+    )
     human = parser.add_mutually_exclusive_group()
     human.add_argument("--scripted", action="store_true", help="the simulated human reviews; exits with a summary")
     human.add_argument("--no-human", action="store_true", help="start no human-feedback node")
@@ -292,6 +306,12 @@ def main(argv: list[str] | None = None) -> int:
         str(keys_file),
         args.trusted,
     )
+    if args.only:
+        wanted = {name.strip() for name in args.only.split(",") if name.strip()}
+        unknown = wanted - {"env", "simulator", "planner", "human"}
+        if unknown:
+            parser.error(f"--only: unknown nodes {', '.join(sorted(unknown))} (env, simulator, planner, human)")
+        nodes = [n for n in nodes if n.name in wanted]
     echo = not args.quiet and human != "interactive"  # a person reads the human node's screen
     return supervise(nodes, args.log_dir, args.ready_timeout, args.max_restarts, echo, args.run_for)
 
