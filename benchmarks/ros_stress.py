@@ -2,6 +2,7 @@
 
     .venv/bin/python benchmarks/ros_stress.py load [--clients 8] [--calls 1000] [--baseline-calls 200]
     .venv/bin/python benchmarks/ros_stress.py malformed [--payloads 10000]
+    .venv/bin/python benchmarks/ros_stress.py kill [--iterations 6]
 
 load: `/lwm/imagine` from one client process, then from N client processes at once (each call:
 one trajectory replaying 4 actions, padded with "stay" to 32 steps), against the launcher's
@@ -14,6 +15,11 @@ nested JSON, NaN, out-of-range and 10,000-step action lists, unicode) spread ove
 service the nodes read, paced so that none is dropped by a queue. Target: 0 crashes (every node
 still running and answering), every payload reported on /lwm/errors (topics) or answered with an
 error (services), and the nodes' memory before and after.
+
+kill: `kill -9` of each node in turn (simulator, planner, environment, human) during a scripted
+review. Target: the launcher restarts each, the review resumes and ends with its summary, SQLite's
+integrity_check is ok, and no ledger record is lost or doubled (plans numbered without gaps or
+repeats, one decision per plan and decision, one label answer per request, one report).
 
 Each part starts its own system with a fresh ROS_DOMAIN_ID and stops it at the end.
 """
@@ -83,10 +89,11 @@ CLIENT = textwrap.dedent(
 class System:
     """The launcher's system (no human) in a temporary directory, stopped on exit."""
 
-    def __init__(self, extra: list[str] | None = None) -> None:
+    def __init__(self, extra: list[str] | None = None, human: str = "--no-human", restarts: int = 0) -> None:
         self.dir = Path(tempfile.mkdtemp(prefix="lwm-stress-"))
-        cmd = [sys.executable, "-m", "lwm_nodes.launcher", "--no-human", "--quiet", "--max-restarts", "0"]
-        cmd += ["--log-dir", str(self.dir), "--ledger", str(self.dir / "ledger.sqlite"), *(extra or [])]
+        self.ledger = self.dir / "ledger.sqlite"
+        cmd = [sys.executable, "-m", "lwm_nodes.launcher", human, "--quiet", "--max-restarts", str(restarts)]
+        cmd += ["--log-dir", str(self.dir), "--ledger", str(self.ledger), *(extra or [])]
         self.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, cwd=ROOT)
         self.lines: list[str] = []
         self.ready = threading.Event()
@@ -247,7 +254,11 @@ def cmd_malformed(args: argparse.Namespace) -> int:
 
     system = System()
     human = subprocess.Popen(  # the human node reads the planner's topics; stdin closed: no typing
-        [sys.executable, "-m", "lwm_nodes.human_node"], stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, cwd=ROOT
+        [sys.executable, "-m", "lwm_nodes.human_node"],
+        stdin=subprocess.DEVNULL,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        cwd=ROOT,
     )
     topics = {**TOPICS, "/planner/plan": "plan", "/planner/label_request": "label_request", "/planner/report": "report"}
     try:
@@ -258,9 +269,13 @@ def cmd_malformed(args: argparse.Namespace) -> int:
         errors = []
         lock = threading.Lock()
 
+        topic_reports = [0]  # counted as they come: the pacing below reads it after every payload
+
         def on_error(msg: String) -> None:
+            error = json.loads(msg.data)
             with lock:
-                errors.append(json.loads(msg.data))
+                errors.append(error)
+                topic_reports[0] += error["where"] in topics
 
         node.create_subscription(String, ERRORS_TOPIC, on_error, QoSProfile(depth=1000, reliability=EVENTS.reliability))
         # Transient local, as the nodes' readers of these topics are (a volatile writer would not match).
@@ -284,13 +299,15 @@ def cmd_malformed(args: argparse.Namespace) -> int:
                 pubs[target].publish(String(data=text))
                 sent_topics += 1
                 expected += pubs[target].get_subscription_count()  # each reading node reports it
-            if i % 25 == 24:  # pace: let the reports catch up, so that no queue drops a payload
-                deadline = time.monotonic() + 20
+                # Pace: the nodes read these topics as state (depth 1), where a newer message
+                # supersedes an unread one; wait for this one's reports before the next.
+                deadline = time.monotonic() + 5
                 while time.monotonic() < deadline:
-                    with lock:
-                        if sum(e["where"] in topics for e in errors) >= expected:
-                            break
-                    time.sleep(0.01)
+                    if topic_reports[0] >= expected:
+                        break
+                    time.sleep(0.002)
+            if i % 1000 == 999:
+                print(f"  {i + 1} sent; topic reports {topic_reports[0]} of {expected}", file=sys.stderr, flush=True)
         elapsed = time.perf_counter() - began
         time.sleep(3)
         after = {name: rss_mb(pid) for name, pid in pids.items()}
@@ -330,6 +347,85 @@ def cmd_malformed(args: argparse.Namespace) -> int:
     return 0 if ok else 1
 
 
+# ---------------------------------------------------------------------------------- kill -9
+def ledger_records(path: Path) -> list[tuple[str, str, dict]]:
+    import sqlite3
+
+    if not path.exists():
+        return []
+    db = sqlite3.connect(f"file:{path}?mode=ro", uri=True, timeout=30)
+    try:
+        return [(r, k, json.loads(p)) for r, k, p in db.execute("SELECT review_id, kind, payload FROM records")]
+    except sqlite3.OperationalError:  # the planner has not created the table yet
+        return []
+    finally:
+        db.close()
+
+
+def ledger_problems(path: Path) -> list[str]:
+    """What would show a lost or doubled record in a finished review's ledger."""
+    import sqlite3
+
+    db = sqlite3.connect(f"file:{path}?mode=ro", uri=True)
+    integrity = db.execute("PRAGMA integrity_check").fetchone()[0]
+    db.close()
+    problems = [] if integrity == "ok" else [f"integrity_check: {integrity}"]
+    records = ledger_records(path)
+    for review in sorted({r for r, _, _ in records}):
+        mine = [(k, p) for r, k, p in records if r == review]
+        plans = [p["plan_id"] for k, p in mine if k == "plan"]
+        if plans != list(range(1, len(plans) + 1)):
+            problems.append(f"{review}: plans recorded {plans}, not 1..{len(plans)} once each")
+        decisions = [(p["plan_id"], p["decision"]) for k, p in mine if k == "feedback"]
+        if len(decisions) != len(set(decisions)):
+            problems.append(f"{review}: a decision recorded twice: {decisions}")
+        if any(plan not in plans for plan, _ in decisions):
+            problems.append(f"{review}: feedback on a plan that was never recorded: {decisions}")
+        answered = [p["request_id"] for k, p in mine if k == "labels"]
+        if len(answered) != len(set(answered)):
+            problems.append(f"{review}: labels of a request recorded twice: {answered}")
+        reports = sum(k == "report" for k, _ in mine)
+        if reports != 1:
+            problems.append(f"{review}: {reports} execution reports")
+    return problems
+
+
+def cmd_kill(args: argparse.Namespace) -> int:
+    system = System(["--iterations", str(args.iterations)], human="--scripted", restarts=4)
+    order = ["simulator", "planner", "env", "human"]
+    log = []
+    try:
+        for name in order:
+            # Kill once the review has moved since the last kill: a plan or a label request more.
+            seen = len(ledger_records(system.ledger))
+            deadline = time.monotonic() + 180
+            while len(ledger_records(system.ledger)) <= seen and time.monotonic() < deadline:
+                if system.proc.poll() is not None:
+                    break
+                time.sleep(0.5)
+            pid = system.node_pids().get(name)
+            if pid is None or system.proc.poll() is not None:
+                log.append(f"{name}: not running (the review may have ended)")
+                continue
+            os.kill(pid, signal.SIGKILL)
+            began = time.monotonic()
+            while system.node_pids().get(name) in (None, pid) and time.monotonic() - began < 60:
+                time.sleep(0.1)
+            log.append(f"{name}: killed (pid {pid}), restarted after {time.monotonic() - began:.1f} s")
+        code = system.proc.wait(900)
+    except subprocess.TimeoutExpired:
+        code = system.stop()
+    summary = [line.strip() for line in system.lines if "SUMMARY" in line]
+    problems = ledger_problems(system.ledger)
+    for line in log:
+        print(line)
+    print(summary[-1] if summary else "no summary: the review did not finish")
+    print(f"launcher exit {code}; ledger {system.ledger}: {'ok' if not problems else problems}")
+    ok = bool(summary) and not problems and code == 0
+    print(f"every node killed once, the review finished, nothing lost or doubled: {'yes' if ok else 'NO'}")
+    return 0 if ok else 1
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = parser.add_subparsers(dest="part", required=True)
@@ -341,6 +437,9 @@ def main() -> int:
     p = sub.add_parser("malformed", help="bad payloads on every topic and service the nodes read")
     p.add_argument("--payloads", type=int, default=10000, help="how many (spread over the targets)")
     p.set_defaults(func=cmd_malformed)
+    p = sub.add_parser("kill", help="kill -9 each node in turn during a scripted review")
+    p.add_argument("--iterations", type=int, default=6, help="online-imitation rounds of the review")
+    p.set_defaults(func=cmd_kill)
     args = parser.parse_args()
     return args.func(args)
 

@@ -80,13 +80,22 @@ def validate(kind: str, payload: Any) -> dict:
     return payload
 
 
+def _no_constant(name: str) -> Any:
+    raise ValueError(f"{name} is not a number in JSON")
+
+
+def decode(kind: str, text: str) -> Any:
+    """A JSON string's value, or MessageError: also for NaN and Infinity, which Python's json
+    reads but the schemas' number ranges do not catch, and for nesting too deep to decode."""
+    try:
+        return json.loads(text, parse_constant=_no_constant)
+    except (ValueError, TypeError, RecursionError) as exc:  # JSONDecodeError is a ValueError
+        raise MessageError(f"{kind}: not JSON: {str(exc)[:200]}") from None
+
+
 def parse(kind: str, text: str) -> dict:
     """Decode and validate a JSON string."""
-    try:
-        payload = json.loads(text)
-    except (json.JSONDecodeError, TypeError) as exc:
-        raise MessageError(f"{kind}: not JSON: {exc}") from None
-    return validate(kind, payload)
+    return validate(kind, decode(kind, text))
 
 
 def dump(kind: str, payload: dict) -> str:

@@ -14,6 +14,9 @@ KINDS = messages.kinds()
 
 def test_every_payload_of_the_system_has_a_schema():
     assert set(KINDS) == {
+        "env_reset_request",
+        "env_response",
+        "env_step_request",
         "error",
         "execution_report",
         "imagine_request",
@@ -60,6 +63,20 @@ def test_feedback_kinds_carry_a_signature_and_their_examples_are_really_signed()
             assert keyring.verify(kind, example) == example["reviewer"]
     # The environment's manual (/env/manual) is not signed: the environment node is trusted.
     assert any(e.get("source") == "env" and "signature" not in e for e in messages.schema("manual")["examples"])
+
+
+@pytest.mark.parametrize(
+    "text, why",
+    [
+        ('{"version": 1, "n": NaN}', "NaN is not a number"),
+        ('{"version": 1, "temperature": Infinity}', "Infinity is not a number"),
+        ("[" * 100000 + "]" * 100000, "recursion"),
+        ("{not json", "Expecting property name"),
+    ],
+)
+def test_text_that_is_not_plain_json_is_refused_with_the_reason(text, why):
+    with pytest.raises(messages.MessageError, match=why):
+        messages.parse("imagine_request", text)
 
 
 def test_parse_and_dump_errors_name_the_problem():

@@ -1,12 +1,11 @@
 """Messenger environment node: the real game.
 
 Publishes /env/state after every reset and step and the game's manual on /env/manual (latched);
-serves /env/reset and /env/step (lwm_interfaces/srv/Json: JSON in, JSON out).
+serves /env/reset and /env/step (lwm_interfaces/srv/Json: JSON in, JSON out; schemas
+env_reset_request, env_step_request and env_response).
 """
 
 from __future__ import annotations
-
-import json
 
 from lwm_interfaces.srv import Json
 
@@ -40,16 +39,18 @@ class EnvNode(JsonNode):
         self.publish_state(state)
         self.publish_manual(self.session.manual())
 
-    def _serve(self, where: str, request: str, act) -> str:
+    def _serve(self, where: str, kind: str, request: str, act) -> str:
         try:
-            payload = json.loads(request or "{}")
-            if not isinstance(payload, dict):
-                raise messages.MessageError("the request must be a JSON object")
-            state = act(payload)
-            return json.dumps({"ok": True, "state": messages.validate("state", {"version": 1, **state})})
+            payload = messages.decode(kind, request)
+            if isinstance(payload, dict):  # typed by hand, a request may leave its version out
+                payload = {"version": messages.version(kind), **payload}
+            state = act(messages.validate(kind, payload))
+            return messages.dump(
+                "env_response", {"ok": True, "state": messages.validate("state", {"version": 1, **state})}
+            )
         except Exception as exc:
             self.report_error(where, exc, request)
-            return json.dumps({"ok": False, "error": str(exc)})
+            return messages.dump("env_response", {"ok": False, "error": str(exc)[:2000]})
 
     def on_reset(self, req, res):
         def act(p):
@@ -57,18 +58,16 @@ class EnvNode(JsonNode):
             self._announce(state)
             return state
 
-        res.response = self._serve("/env/reset", req.request, act)
+        res.response = self._serve("/env/reset", "env_reset_request", req.request, act)
         return res
 
     def on_step(self, req, res):
         def act(p):
-            if "action" not in p:
-                raise messages.MessageError('a step request is {"action": 0-4}')
             state = self.session.step(p["action"])
             self.publish_state(state)
             return state
 
-        res.response = self._serve("/env/step", req.request, act)
+        res.response = self._serve("/env/step", "env_step_request", req.request, act)
         return res
 
 

@@ -68,7 +68,7 @@ class HumanNode(JsonNode):
         self.imaginer = ServiceImaginer(
             json_caller(self, self.create_client(Json, "/lwm/imagine"), "imagine_response", 30.0)
         )
-        self.env_reset = json_caller(self, self.create_client(Json, "/env/reset"), None, 30.0)
+        self.env_reset = json_caller(self, self.create_client(Json, "/env/reset"), "env_response", 30.0)
         self.json_subscription("/env/state", "state", self.on_state, LATCHED)
         self.json_subscription("/planner/plan", "plan", self.on_plan, LATCHED)
         self.json_subscription("/planner/label_request", "label_request", self.on_label_request, LATCHED)

@@ -59,8 +59,10 @@ class PlannerNode(JsonNode):
             publish_plan=self.json_publisher("/planner/plan", "plan", LATCHED),
             publish_label_request=self.json_publisher("/planner/label_request", "label_request", LATCHED),
             publish_report=self.json_publisher("/planner/report", "execution_report", LATCHED),
-            env_reset=self._env(json_caller(self, self.create_client(Json, "/env/reset"), None, call_timeout)),
-            env_step=self._env(json_caller(self, self.create_client(Json, "/env/step"), None, call_timeout)),
+            env_reset=self._env(
+                json_caller(self, self.create_client(Json, "/env/reset"), "env_response", call_timeout)
+            ),
+            env_step=self._env(json_caller(self, self.create_client(Json, "/env/step"), "env_response", call_timeout)),
             log=self.get_logger().info,
         )
         # The text model loads now, not on the first uncached description of a language feedback.
