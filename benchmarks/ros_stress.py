@@ -72,6 +72,7 @@ CLIENT = textwrap.dedent(
     while time.time() < start_at:
         time.sleep(0.005)
     lat, fail, batched = [], 0, []
+    first = time.time()
     for i in range(calls if ok else 0):
         text = json.dumps(imagine_request(i))
         t = time.perf_counter()
@@ -80,7 +81,8 @@ CLIENT = textwrap.dedent(
         answer = json.loads(res.response) if res is not None else {"ok": False}
         fail += not answer.get("ok")
         batched.append(answer.get("batched", 1))
-    print(json.dumps({"latencies": lat, "failures": fail + (0 if ok else calls), "batched": batched}), flush=True)
+    out = {"latencies": lat, "failures": fail + (0 if ok else calls), "batched": batched, "first": first}
+    print(json.dumps({**out, "last": time.time()}), flush=True)
     spin.close(); node.destroy_node(); rclpy.try_shutdown()
     """
 )
@@ -148,7 +150,7 @@ def run_clients(n: int, calls: int) -> tuple[list[float], int, float, list[int]]
         for _ in range(n)
     ]
     results = [json.loads(p.communicate(timeout=3600)[0].strip().splitlines()[-1]) for p in procs]
-    wall = time.time() - start_at
+    wall = max(r["last"] for r in results) - min(r["first"] for r in results)  # calls only, not start-up
     lat = [x for r in results for x in r["latencies"]]
     return lat, sum(r["failures"] for r in results), wall, [b for r in results for b in r["batched"]]
 

@@ -153,7 +153,20 @@ def test_environment_reset_and_step(system):
     step = call(system, "/env/step", {"action": 3})
     assert step["ok"] and step["state"]["t"] == 1
     bad = call(system, "/env/step", {"action": 9})
-    assert not bad["ok"] and "0..4" in bad["error"]
+    assert not bad["ok"] and "env_step_request: action" in bad["error"]
+
+
+def watch_errors(system, timeout: float) -> tuple[subprocess.Popen, list[str]]:
+    """`lwm ros echo /lwm/errors` in the background: the process, and the lines it has printed."""
+    errors = subprocess.Popen(
+        [sys.executable, "-m", "lwm_models.cli.main", "ros", "echo", "/lwm/errors", "--timeout", str(timeout)],
+        stdout=subprocess.PIPE,
+        text=True,
+        env=system["env"],
+    )
+    lines: list[str] = []
+    threading.Thread(target=lambda: lines.extend(errors.stdout), daemon=True).start()
+    return errors, lines
 
 
 def latched(system, topic: str) -> dict:
@@ -341,14 +354,7 @@ def test_bad_labels_get_errors_and_change_nothing_then_a_fixed_resend_is_taken(s
     assert request, "no label request"
     n = len(request["observations"])
     base = {"version": 2, "review_id": request["review_id"], "request_id": request["request_id"]}
-    errors = subprocess.Popen(
-        [sys.executable, "-m", "lwm_models.cli.main", "ros", "echo", "/lwm/errors", "--timeout", "60"],
-        stdout=subprocess.PIPE,
-        text=True,
-        env=system["env"],
-    )
-    lines: list[str] = []
-    threading.Thread(target=lambda: lines.extend(errors.stdout), daemon=True).start()
+    errors, lines = watch_errors(system, 60)
     try:
         time.sleep(2.0)
         bad = [
@@ -418,14 +424,7 @@ def test_only_a_trusted_reviewer_can_approve(system, tmp_path):
     approve = {"version": 2, "review_id": plan["review_id"], "plan_id": plan["plan_id"], "decision": "approve"}
     rogue_keys = tmp_path / "rogue_keys.json"  # the rogue's own keys, not the launcher's
     signing.ensure_key_file(rogue_keys, ["mallory", "terminal"])
-    errors = subprocess.Popen(
-        [sys.executable, "-m", "lwm_models.cli.main", "ros", "echo", "/lwm/errors", "--timeout", "60"],
-        stdout=subprocess.PIPE,
-        text=True,
-        env=system["env"],
-    )
-    lines: list[str] = []
-    threading.Thread(target=lambda: lines.extend(errors.stdout), daemon=True).start()
+    errors, lines = watch_errors(system, 60)
 
     def taken() -> list[dict]:
         records = Ledger(system["tmp"] / "ledger.sqlite").history(plan["review_id"])
