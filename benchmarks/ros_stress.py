@@ -3,6 +3,7 @@
     .venv/bin/python benchmarks/ros_stress.py load [--clients 8] [--calls 1000] [--baseline-calls 200]
     .venv/bin/python benchmarks/ros_stress.py malformed [--payloads 10000]
     .venv/bin/python benchmarks/ros_stress.py kill [--iterations 6]
+    .venv/bin/python benchmarks/ros_stress.py shutdown [--clients 8]
 
 load: `/lwm/imagine` from one client process, then from N client processes at once (each call:
 one trajectory replaying 4 actions, padded with "stay" to 32 steps), against the launcher's
@@ -20,6 +21,9 @@ kill: `kill -9` of each node in turn (simulator, planner, environment, human) du
 review. Target: the launcher restarts each, the review resumes and ends with its summary, SQLite's
 integrity_check is ok, and no ledger record is lost or doubled (plans numbered without gaps or
 repeats, one decision per plan and decision, one label answer per request, one report).
+
+shutdown: SIGTERM to the launcher while N clients keep calling /lwm/imagine (and a scripted
+review is under way): each node's exit, timed by the launcher. Target: every node within 2 s.
 
 Each part starts its own system with a fresh ROS_DOMAIN_ID and stops it at the end.
 """
@@ -428,6 +432,37 @@ def cmd_kill(args: argparse.Namespace) -> int:
     return 0 if ok else 1
 
 
+def cmd_shutdown(args: argparse.Namespace) -> int:
+    import re
+
+    system = System(human="--scripted", restarts=0)
+    start_at = time.time() + 8.0
+    clients = [
+        subprocess.Popen(
+            [sys.executable, "-c", CLIENT, "/lwm/imagine", "100000", str(start_at), str(Path(__file__).parent)],
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+        )
+        for _ in range(args.clients)
+    ]
+    time.sleep(8.0 + args.load_seconds)  # the clients are calling; the planner is reviewing
+    system.proc.send_signal(signal.SIGTERM)
+    code = system.proc.wait(60)
+    for c in clients:
+        c.kill()
+        c.wait()
+    times = {
+        m.group(1): float(m.group(2))
+        for line in system.lines
+        if (m := re.search(r"launcher: (\w+) exit code .*, ([\d.]+) s after SIGTERM", line))
+    }
+    for name, took in times.items():
+        print(f"  {name:<10} exited {took:.2f} s after SIGTERM")
+    ok = len(times) == 4 and max(times.values()) <= 2.0
+    print(f"every node within 2 s of SIGTERM under load: {'yes' if ok else 'NO'}; launcher exit {code}")
+    return 0 if ok else 1
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = parser.add_subparsers(dest="part", required=True)
@@ -442,6 +477,10 @@ def main() -> int:
     p = sub.add_parser("kill", help="kill -9 each node in turn during a scripted review")
     p.add_argument("--iterations", type=int, default=6, help="online-imitation rounds of the review")
     p.set_defaults(func=cmd_kill)
+    p = sub.add_parser("shutdown", help="SIGTERM under load: every node's exit time")
+    p.add_argument("--clients", type=int, default=8, help="client processes calling /lwm/imagine")
+    p.add_argument("--load-seconds", type=float, default=20.0, help="seconds of load before SIGTERM")
+    p.set_defaults(func=cmd_shutdown)
     args = parser.parse_args()
     return args.func(args)
 

@@ -239,13 +239,15 @@ class ReviewLoop:
             return True
         return False
 
-    def close(self) -> None:
+    def close(self, wait: float = 5.0) -> None:
+        """Stop taking work; wait up to `wait` seconds for the job in hand (a node that is ending
+        its process waits briefly: what it abandons, the ledger lets a restart resume)."""
         self.closing.set()
         with self.lock:
             if self.review is not None:
                 self.review.labels_in.set()
         self.jobs.put(None)
-        self.worker.join(timeout=5)
+        self.worker.join(timeout=wait)
 
     # ================================================================== starting
     def _manual_fits(self, game: str) -> bool:

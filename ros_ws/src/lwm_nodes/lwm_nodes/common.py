@@ -7,6 +7,7 @@ import os
 import signal
 import sys
 import threading
+import time
 from collections.abc import Callable
 from pathlib import Path
 
@@ -122,12 +123,17 @@ def make_executor(threads: int = 1) -> Executor:
 
 
 def run(make_node: Callable[[], Node], stop: threading.Event | None = None, threads: int = 1) -> int:
-    """Create the node, print READY, spin until SIGINT/SIGTERM, then shut down in order.
+    """Create the node, print READY, spin until SIGINT/SIGTERM, shut down in order, and end the
+    process: within 2 s of the signal, under load (benchmarks/ros_stress.py shutdown).
     `threads` > 1 spins a MultiThreadedExecutor, for a node whose callbacks may wait on each other
     (the simulator's service calls wait for their batch).
 
     rclpy's own signal handlers are off: they race with an early signal; an Event set by our
     handlers ends the spin loop instead (the pattern measured in shared/docs/ros2-from-pypi.md).
+    Work still running in the node's own threads (learning, imagination calls) is abandoned, not
+    waited for: the process ends with os._exit. Nothing acknowledged is lost that way: the ledger
+    commits every record as it happens, and a restarted node resumes the review from it (the same
+    as after a kill -9, which the tests do).
     """
     stop = stop or threading.Event()
     ros_environment()
@@ -136,6 +142,7 @@ def run(make_node: Callable[[], Node], stop: threading.Event | None = None, thre
         signal.signal(sig, lambda *_: stop.set())
     node = None
     executor = make_executor(threads)
+    code = 0
     try:
         node = make_node()
         executor.add_node(node)
@@ -144,15 +151,23 @@ def run(make_node: Callable[[], Node], stop: threading.Event | None = None, thre
             executor.spin_once(timeout_sec=0.1)
     except Exception as exc:
         print(f"fatal: {type(exc).__name__}: {exc}", file=sys.stderr, flush=True)
-        return 1
+        code = 1
     finally:
+        marks = [("", time.monotonic())]
         if isinstance(node, JsonNode):
             node.close()  # before the executor waits for running callbacks: let them end now
-        executor.shutdown()
+        marks.append(("close", time.monotonic()))
+        executor.shutdown(timeout_sec=1.0)
+        marks.append(("executor", time.monotonic()))
         if node is not None:
             node.destroy_node()
+        marks.append(("node", time.monotonic()))
         rclpy.try_shutdown()
-    return 0
+        marks.append(("rclpy", time.monotonic()))
+        phases = ", ".join(f"{name} {t - marks[i][1]:.2f}" for i, (name, t) in enumerate(marks[1:]))
+        print(f"stopped in {marks[-1][1] - marks[0][1]:.2f} s ({phases})", flush=True)
+        sys.stderr.flush()
+    os._exit(code)
 
 
 def json_caller(node: Node, client, kind: str | None, timeout: float) -> Callable[[dict], dict]:

@@ -92,9 +92,8 @@ class PlannerNode(JsonNode):
 
         return env
 
-    def destroy_node(self) -> None:
-        self.loop.close()
-        super().destroy_node()
+    def close(self) -> None:
+        self.loop.close(wait=0.5)
 
 
 def main() -> int:
