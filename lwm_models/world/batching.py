@@ -105,12 +105,15 @@ class ImagineServer:
     def _batches(self, jobs: list[_Job]) -> list[list[_Job]]:
         """Jobs grouped by batch key (arrival order kept), each group cut at max_trajectories."""
         groups: dict[tuple, list[list[_Job]]] = {}
+        filled: dict[tuple, int] = {}  # trajectories in each key's last chunk
         for job in jobs:
-            n = _trajectory_count(job.request)
+            n = self.sim.trajectory_count(job.request)
             chunks = groups.setdefault(job.key, [[]])
-            if chunks[-1] and sum(_trajectory_count(j.request) for j in chunks[-1]) + n > self.max_trajectories:
+            if chunks[-1] and filled[job.key] + n > self.max_trajectories:
                 chunks.append([])
+                filled[job.key] = 0
             chunks[-1].append(job)
+            filled[job.key] = filled.get(job.key, 0) + n
         return [chunk for chunks in groups.values() for chunk in chunks]
 
     def _run(self, batch: list[_Job]) -> None:
@@ -129,12 +132,6 @@ class ImagineServer:
         for job, response in zip(batch, responses):
             job.response = {**response, "batched": len(batch)}
             job.done.set()
-
-
-def _trajectory_count(request: dict) -> int:
-    if "actions" in request:
-        return len(request["actions"])
-    return int(request.get("n", len(request.get("observations", [None]))))
 
 
 __all__ = ["ImagineServer", "MAX_BATCH_TRAJECTORIES", "ShuttingDown"]

@@ -10,7 +10,7 @@ episodes finish.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import torch
@@ -97,6 +97,14 @@ class _Sampler:
     gens: list[torch.Generator]  # one random stream per group of trajectories
     stream: np.ndarray  # [rows]: the stream of each running trajectory
     temperature: float
+    stream_rows: list[torch.Tensor] = field(init=False)  # the running rows of each stream
+
+    def __post_init__(self) -> None:
+        self._index_streams()
+
+    def _index_streams(self) -> None:
+        # Rows change only when trajectories end (keep), not at each of a step's 14 samples.
+        self.stream_rows = [torch.from_numpy(np.flatnonzero(self.stream == s)) for s in range(len(self.gens))]
 
     def run(self, new_tokens: torch.Tensor) -> torch.Tensor:
         """Feed tokens; the last hidden state predicts the next token."""
@@ -111,14 +119,14 @@ class _Sampler:
             token = torch.multinomial(probs, 1, generator=self.gens[0]).squeeze(1)
         else:
             token = torch.empty(len(probs), dtype=torch.long)
-            for s, gen in enumerate(self.gens):
-                rows = torch.from_numpy(np.flatnonzero(self.stream == s))
+            for gen, rows in zip(self.gens, self.stream_rows):
                 if len(rows):
                     token[rows] = torch.multinomial(probs[rows], 1, generator=gen).squeeze(1)
         return token, probs.gather(1, token[:, None]).squeeze(1)
 
     def keep(self, idx: torch.Tensor) -> None:
         self.stream = self.stream[idx.numpy()]
+        self._index_streams()
         self.cond = self.cond.index(idx)
         if self.cache is not None:
             self.cache.select(idx)

@@ -164,9 +164,22 @@ class Simulator:
         return self._batch, list(self.manual), self.manual_version
 
     @staticmethod
-    def _starts(request: dict) -> np.ndarray:
-        """[k, 4, 3]: the request's start observations (game states: messages.validate checked them)."""
-        return np.asarray(request["observations"] if "observations" in request else [request["observation"]], np.uint8)
+    def trajectory_count(request: dict) -> int:
+        """How many trajectories an `imagine` or `open` request imagines: one per action sequence
+        of a one-shot request that gives them, else `n`, else one per start observation."""
+        if request.get("op", "imagine") == "imagine" and "actions" in request:
+            return len(request["actions"])
+        return int(request.get("n", len(request["observations"]) if "observations" in request else 1))
+
+    def _starts(self, request: dict) -> np.ndarray:
+        """[n, 4, 3]: the start observation of each trajectory (game states: messages.validate
+        checked them); a request gives one for all or one each."""
+        given = request["observations"] if "observations" in request else [request["observation"]]
+        starts = np.asarray(given, np.uint8)
+        n = self.trajectory_count(request)
+        if len(starts) not in (1, n):
+            raise RequestError(f"give one start observation or one per trajectory ({n}), got {len(starts)}")
+        return np.broadcast_to(starts, (n, *starts.shape[1:]))
 
     def imagine(self, request: dict) -> dict:
         """One-shot imagination (op `imagine`)."""
@@ -221,18 +234,14 @@ class Simulator:
     def _trajectories(self, request: dict, max_steps: int) -> tuple[np.ndarray, np.ndarray]:
         """A one-shot request's start observation and actions per trajectory ([n, 4, 3], [n, max_steps])."""
         starts = self._starts(request)
+        n = len(starts)
         if "actions" in request:
-            seqs = request["actions"]
-            n = len(seqs)
             actions = np.full((n, max_steps), 4, dtype=np.int64)
-            for i, seq in enumerate(seqs):
+            for i, seq in enumerate(request["actions"]):
                 actions[i, : min(len(seq), max_steps)] = seq[:max_steps]
         else:
-            n = int(request.get("n", len(starts)))
             actions = np.random.default_rng(int(request.get("seed", 0))).integers(5, size=(n, max_steps))
-        if len(starts) not in (1, n):
-            raise RequestError(f"give one start observation or one per trajectory ({n}), got {len(starts)}")
-        return np.broadcast_to(starts, (n, *starts.shape[1:])) if len(starts) == 1 else starts, actions
+        return starts, actions
 
     def _open(self, request: dict) -> dict:
         self._expire()
@@ -240,14 +249,11 @@ class Simulator:
             raise RequestError(f"{self.max_sessions} imagination sessions are open; close one first")
         batch, manual, version = self._manual_for(request)
         starts = self._starts(request)
-        n = int(request.get("n", len(starts)))
-        if len(starts) not in (1, n):
-            raise RequestError(f"give one start observation or one per trajectory ({n}), got {len(starts)}")
         rollout = Rollout(
             self.model,
             batch,
-            starts[0] if len(starts) == 1 else starts,
-            n,
+            starts,
+            len(starts),
             int(request.get("max_steps", 32)),
             float(request.get("temperature", 1.0)),
             int(request.get("seed", 0)),

@@ -321,6 +321,7 @@ def train(args: TrainArgs, log=print) -> dict:
             bar.update(1)
             bar.set_postfix(loss=f"{np.mean(window[-50:]):.3f}")
         if step % 50 == 0:
+            now = elapsed()
             record(
                 {
                     "step": step,
@@ -330,7 +331,8 @@ def train(args: TrainArgs, log=print) -> dict:
                     "done": out_.done.item(),
                     "lr": lr,
                     "grad_norm": grad_norm,
-                    **{k: round(v, 1) for k, v in zip(("elapsed_s", "cpu_s"), elapsed().values())},
+                    "elapsed_s": round(now["wall_s"], 1),
+                    "cpu_s": round(now["cpu_s"], 1),
                     "seed": args.seed,
                 }
             )
