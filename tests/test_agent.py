@@ -249,10 +249,11 @@ def test_overlapped_rounds_act_one_round_behind_and_learn_from_every_round(agent
         losses = agent.imitate(recording, first, Budget(iterations=3, episodes=4, grad_steps=3, **budget))
         return rounds, losses, agent
 
-    sequential, seq_losses, _ = run()
+    # lr 1e-2: three steps change the policy enough that its sampled actions show it
+    sequential, seq_losses, _ = run(lr=1e-2)
     frozen, _, _ = run(lr=0.0)  # every round acted by the initial policy
-    overlapped, losses, agent = run(overlap=True)
-    again, losses_again, _ = run(overlap=True)
+    overlapped, losses, agent = run(overlap=True, lr=1e-2)
+    again, losses_again, _ = run(overlap=True, lr=1e-2)
     assert len(overlapped) == 3 and len(losses) == 3 and len(agent.labelled) > 0
     assert np.array_equal(overlapped[0], sequential[0])  # round 1: the initial policy in both
     assert np.array_equal(overlapped[1], frozen[1])  # round 2: still the initial policy

@@ -1,5 +1,6 @@
-"""Dynamic batching of /lwm/imagine (lwm_models.world.batching), with real threads and the shipped
-model: concurrent requests share batches and each gets the answer it would get alone."""
+"""Continuous batching of /lwm/imagine (lwm_models.world.continuous and .batching), with real
+threads and the shipped model: concurrent requests share the model's steps, join a running batch
+and leave it at their own end, and each gets the answer it would get alone."""
 
 from __future__ import annotations
 
@@ -11,7 +12,8 @@ import pytest
 import torch
 from game_fixtures import MANUAL, OBS
 
-from lwm_models.world.batching import ImagineServer, _Job
+from lwm_models.world.batching import ImagineServer
+from lwm_models.world.continuous import ContinuousBatch, run_alone
 from lwm_models.world.frozen_text import FrozenTextEncoder
 from lwm_models.world.simulator import Simulator
 
@@ -57,8 +59,8 @@ def test_concurrent_requests_share_batches_and_get_what_they_get_alone(sim):
         got = json.loads(answer)
         assert got["ok"] and got["manual_version"] == sim.manual_version
         assert trajectories(answer) == trajectories(json.dumps(alone[i])), f"request {i} differs when batched"
-    # While the first batch ran the others queued: fewer batches than requests.
-    assert server.batched_requests == 12 and server.batches < 12
+    # Requests shared steps: more trajectory-steps were imagined than steps were taken.
+    assert server.requests == 12 and server.batch.row_steps > server.batch.steps
     assert max(json.loads(a)["batched"] for a in answers.values()) > 1
 
 
@@ -86,17 +88,57 @@ def test_a_bad_request_in_a_batch_fails_alone(sim):
         assert error is None and json.loads(answer)["ok"]
 
 
-def test_requests_that_cannot_share_a_batch_are_kept_apart(sim):
-    # Another time limit or temperature is another batch, and a batch stops at max_trajectories.
-    server = ImagineServer(sim, max_trajectories=5)
-    texts = [request(0), request(1, temperature=0.5), request(2), request(3, max_steps=4), request(4), request(5)]
-    jobs = [_Job(r, sim.batch_key(r)) for r in map(json.loads, texts)]
-    groups = [[job.request["seed"] for job in g] for g in server._batches(jobs)]
-    assert groups == [[0, 2], [4, 5], [1], [3]]  # two trajectories each: 0 and 2 fill 4 of 5
+def test_requests_join_a_running_batch_and_leave_at_their_own_end(sim):
+    # Requests with other manuals, temperatures and time limits share one batch; one joins after
+    # three steps of the others, each at its own place in the KV cache.
+    other_manual = [MANUAL[2], MANUAL[0], MANUAL[1]]
+    requests = [
+        json.loads(request(0, max_steps=12)),
+        json.loads(request(1, temperature=0.5, manual=other_manual)),
+        json.loads(request(2, max_steps=3)),
+    ]
+    alone = [run_alone(sim.model, sim.one_shot(r)) for r in requests]
+    batch = ContinuousBatch(sim.model)
+    tracks = [sim.one_shot(r) for r in requests]
+    batch.admit(tracks[0])
+    batch.admit(tracks[1])
+    ended = []
+    for _ in range(3):
+        ended += batch.step()
+    assert tracks[0].t == 3 and not ended
+    batch.admit(tracks[2])
+    while batch:
+        ended += batch.step()
+    assert tracks[2] in ended and tracks[2].t == 3  # the short one left at its own time limit
+    assert tracks[2].peak >= 2 and batch.row_steps > batch.steps
+    for track, want in zip(tracks, alone):
+        got = track.result()
+        for name in ("observations", "actions", "rewards", "dones", "lengths"):
+            assert (getattr(got, name) == getattr(want, name)).all(), name
+        assert abs(got.token_probs - want.token_probs).max() < 1e-4
+
+
+def test_a_big_request_waits_for_room_and_session_ops_are_not_queued(sim):
+    server = ImagineServer(sim, max_trajectories=3)
+    assert server.batch.fits(5)  # an empty batch takes any request
+    answers: dict[int, dict] = {}
+
+    def client(i: int, k: int) -> None:
+        text = json.dumps({"version": 1, "observation": OBS, "n": k, "max_steps": 6, "seed": i})
+        answers[i] = json.loads(server.serve(text)[0])
+
+    threads = [threading.Thread(target=client, args=(i, k)) for i, k in enumerate((2, 2, 5))]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(60)
+    assert all(a["ok"] for a in answers.values()) and [len(answers[i]["trajectories"]) for i in range(3)] == [2, 2, 5]
+    # 2 + 5 trajectories exceed the limit of 3: the big request ran alone, in an empty batch.
+    assert answers[2]["batched"] == 1 and server.batch.widest == 5
     # Session ops are never queued: they are answered in the caller's thread.
     opened, error = server.serve(json.dumps({"version": 1, "op": "open", "observation": OBS, "n": 1, "max_steps": 2}))
     server.close()
-    assert error is None and json.loads(opened)["session"] and server.batches == 0
+    assert error is None and json.loads(opened)["session"] and server.requests == 3
 
 
 def test_closing_answers_the_waiting_requests_at_once(sim):

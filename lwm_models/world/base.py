@@ -75,6 +75,17 @@ class Conditioning:
     def index(self, idx: torch.Tensor) -> Conditioning:
         return Conditioning(*(None if t is None else t[idx] for t in (self.id_table, self.memory, self.memory_mask)))
 
+    @staticmethod
+    def cat(parts: Sequence[Conditioning]) -> Conditioning:
+        """The conditionings of several batches as one (memories padded to the longest)."""
+        id_table = None if parts[0].id_table is None else torch.cat([p.id_table for p in parts])
+        if parts[0].memory is None:
+            return Conditioning(id_table)
+        m = max(p.memory.shape[1] for p in parts)
+        memory = torch.cat([F.pad(p.memory, (0, 0, 0, m - p.memory.shape[1])) for p in parts])
+        mask = torch.cat([F.pad(p.memory_mask, (0, m - p.memory_mask.shape[1]), value=False) for p in parts])
+        return Conditioning(id_table, memory, mask)
+
 
 @dataclass
 class LossOutput:
@@ -143,36 +154,46 @@ class WorldModel(nn.Module):
     def condition(self, manual: ManualBatch) -> Conditioning:
         raise NotImplementedError
 
+    @torch.inference_mode()
+    def condition_on(self, manual: ManualBatch) -> Conditioning:
+        """`condition` for imagination (no autograd; once per manual, not per step)."""
+        self.eval()
+        return self.condition(manual)
+
     def obs_embedding(self, ids: torch.Tensor) -> torch.Tensor:
         """Embedding of observation tokens (used by EMMA to query the manual with id tokens)."""
         return self.tok_emb(ids + ACTION_VOCAB)
 
     # ------------------------------------------------------------------ decoder
-    def embed(self, tokens: torch.Tensor, start: int, cond: Conditioning) -> torch.Tensor:
-        """Token + position embeddings of tokens[:, i] at absolute position start + i."""
-        b, n = tokens.shape
-        pos = torch.arange(start, start + n, device=tokens.device)
-        x = self.tok_emb(tokens + self._slot_offset[pos % BLOCK])
+    def embed(self, tokens: torch.Tensor, positions: torch.Tensor, cond: Conditioning) -> torch.Tensor:
+        """Token + position embeddings of tokens [B, n] at absolute `positions` ([n], or [B, n] for
+        sequences of different lengths; those are at the same place within a block)."""
+        n = tokens.shape[1]
+        x = self.tok_emb(tokens + self._slot_offset[positions % BLOCK])
         if cond.id_table is not None:
+            first = int(positions.reshape(-1, n)[0, 0])
             cols = (
-                _ID_COLUMNS[(start % BLOCK, n)]
+                _ID_COLUMNS[(first % BLOCK, n)]
                 if n <= BLOCK
-                else torch.as_tensor(np.flatnonzero(np.isin(np.arange(start, start + n) % BLOCK, ID_SLOTS)))
+                else torch.as_tensor(np.flatnonzero(np.isin(np.arange(first, first + n) % BLOCK, ID_SLOTS)))
             )
             if len(cols):
                 ids = tokens[:, cols].clamp(0, NUM_IDS - 1)
                 add = torch.gather(cond.id_table, 1, ids.unsqueeze(-1).expand(-1, -1, x.shape[-1]))
                 x[:, cols] = x[:, cols] + add * (ids > 0).unsqueeze(-1).to(add.dtype)
-        return self.drop(x + self.pos_emb(pos))
+        return self.drop(x + self.pos_emb(positions))
 
     def hidden_states(self, tokens: torch.Tensor, cond: Conditioning, cache: KVCache | None = None) -> torch.Tensor:
-        start = 0 if cache is None else cache.length
-        x = self.embed(tokens, start, cond)
+        """Final hidden states [B, n, H] of tokens [B, n]: the whole sequence from position 0, or,
+        with a cache, n more tokens of each cached sequence."""
+        n = tokens.shape[1]
+        positions = torch.arange(n, device=tokens.device) if cache is None else cache.begin(n)
+        x = self.embed(tokens, positions, cond)
         memory_kv = self._memory_kv(cond, cache)
         for i, block in enumerate(self.blocks):
             x = block(x, cache, i, memory_kv[i] if memory_kv else None, cond.memory_mask)
         if cache is not None:
-            cache.length += tokens.shape[1]
+            cache.end(n)
         return self.ln_f(x)
 
     def _memory_kv(self, cond: Conditioning, cache: KVCache | None):

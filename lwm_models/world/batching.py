@@ -1,12 +1,12 @@
-"""Dynamic batching of /lwm/imagine: concurrent one-shot requests imagined as one batch.
+"""Continuous batching of /lwm/imagine: concurrent one-shot requests share the model's steps.
 
-A world model imagines 64 trajectories in about three times the time of one (the step is bound
-by per-operation overhead, not arithmetic), so the simulator serving clients one at a time wastes
-most of its time. `ImagineServer.serve` is called from many threads at once (the node's service
-callbacks); one worker thread takes every request that has queued while the previous batch ran,
-groups those that can share a batch (same manual, time limit and temperature: `Simulator.batch_key`)
-and imagines each group at once, as inference servers do. No request waits for a batch to fill:
-a lone request is imagined at once, and under load a batch forms from what queued meanwhile.
+A step of the world model costs about the same for one trajectory as for sixteen (it is bound by
+per-operation overhead, not arithmetic), so a simulator serving clients one at a time wastes most
+of its time. `ImagineServer.serve` is called from many threads at once (the node's service
+callbacks); one worker thread runs a `ContinuousBatch`: before each step it admits every request
+that has queued (first come, first served, up to the batch's row limit), and a request is answered
+as soon as its last trajectory ends. No request waits for a batch to fill or to finish: a lone
+request starts at once, and one that arrives under load joins at the next step.
 
 Each request keeps its own seeded random stream inside the batch, so its answer is the one it
 would get alone. Session ops (open/step/close) are not batched: they run in the caller's thread.
@@ -17,12 +17,12 @@ from __future__ import annotations
 import queue
 import threading
 import time
+from collections import deque
 from dataclasses import dataclass, field
 
 from ..errors import LwmError
+from .continuous import MAX_ROWS, ContinuousBatch, Track
 from .simulator import Simulator, serve_json
-
-MAX_BATCH_TRAJECTORIES = 256  # per batch: bounds the memory and latency of one batch
 
 
 class ShuttingDown(LwmError):
@@ -32,21 +32,24 @@ class ShuttingDown(LwmError):
 @dataclass
 class _Job:
     request: dict
-    key: tuple
+    size: int  # trajectories
     done: threading.Event = field(default_factory=threading.Event)
     response: dict | None = None
     error: Exception | None = None
+
+    def finish(self, response: dict | None = None, error: Exception | None = None) -> None:
+        self.response, self.error = response, error
+        self.done.set()
 
 
 class ImagineServer:
     """Thread-safe request-string -> response-string service over a Simulator."""
 
-    def __init__(self, sim: Simulator, max_trajectories: int = MAX_BATCH_TRAJECTORIES) -> None:
+    def __init__(self, sim: Simulator, max_trajectories: int = MAX_ROWS) -> None:
         self.sim = sim
-        self.max_trajectories = max_trajectories
+        self.batch = ContinuousBatch(sim.model, max_trajectories)
+        self.requests = 0  # one-shot requests answered: for status and benchmarks
         self._queue: queue.SimpleQueue[_Job | None] = queue.SimpleQueue()
-        self.batches = 0  # batches imagined, and the requests in them: for status and benchmarks
-        self.batched_requests = 0
         self._closed = threading.Event()
         self._worker = threading.Thread(target=self._work, name="imagine-batcher", daemon=True)
         self._worker.start()
@@ -58,80 +61,80 @@ class ImagineServer:
 
     def handle(self, request: dict) -> dict:
         """The response to a valid request: one-shot requests wait for their batch."""
-        key = self.sim.batch_key(request)
-        if key is None:
+        if not self.sim.is_one_shot(request):
             return self.sim.handle(request)
         if self._closed.is_set():
             raise ShuttingDown("the simulator is shutting down")
         began = time.perf_counter()
-        job = _Job(request, key)
+        job = _Job(request, self.sim.trajectory_count(request))
         self._queue.put(job)
-        job.done.wait()
+        while not job.done.wait(0.5):
+            if not self._worker.is_alive():  # it stopped after this job was queued
+                raise ShuttingDown("the simulator is shutting down")
         if job.error is not None:
             raise job.error
         return {**job.response, "seconds": round(time.perf_counter() - began, 4)}
 
     def close(self, timeout: float = 1.5) -> None:
-        """Stop: the batch being imagined finishes; queued requests are answered with an error at
-        once, so that the node's waiting service calls end and it can exit."""
+        """Stop: the requests being imagined finish (at most one time limit of steps); queued ones
+        are answered with an error at once, so that the node's waiting service calls end and it
+        can exit."""
         self._closed.set()
         self._queue.put(None)
         self._worker.join(timeout)
 
     # ------------------------------------------------------------------ the worker
     def _work(self) -> None:
+        waiting: deque[_Job] = deque()
+        closing = False
         while True:
-            job = self._queue.get()
+            closing = self._take(waiting, wait=not self.batch and not waiting) or closing
+            if closing:
+                while waiting:
+                    waiting.popleft().finish(error=ShuttingDown("the simulator is shutting down"))
+                if not self.batch:
+                    return
+            while waiting and self.batch.fits(waiting[0].size):
+                self._admit(waiting.popleft())
+            if self.batch:
+                self._step()
+
+    def _take(self, waiting: deque[_Job], wait: bool) -> bool:
+        """Move what has queued to `waiting` (blocking for the first when `wait`); True when the
+        server is closing."""
+        while True:
+            try:
+                job = self._queue.get(block=wait)
+            except queue.Empty:
+                return False
             if job is None:
-                return
-            jobs = [job]
-            while True:  # everything that queued while the last batch ran
-                try:
-                    more = self._queue.get_nowait()
-                except queue.Empty:
-                    break
-                if more is None:
-                    self._queue.put(None)  # finish this round, then stop
-                    break
-                jobs.append(more)
-            for batch in self._batches(jobs):
-                if self._closed.is_set():
-                    for job in batch:
-                        job.error = ShuttingDown("the simulator is shutting down")
-                        job.done.set()
-                else:
-                    self._run(batch)
+                return True
+            waiting.append(job)
+            wait = False
 
-    def _batches(self, jobs: list[_Job]) -> list[list[_Job]]:
-        """Jobs grouped by batch key (arrival order kept), each group cut at max_trajectories."""
-        groups: dict[tuple, list[list[_Job]]] = {}
-        filled: dict[tuple, int] = {}  # trajectories in each key's last chunk
-        for job in jobs:
-            n = self.sim.trajectory_count(job.request)
-            chunks = groups.setdefault(job.key, [[]])
-            if chunks[-1] and filled[job.key] + n > self.max_trajectories:
-                chunks.append([])
-                filled[job.key] = 0
-            chunks[-1].append(job)
-            filled[job.key] = filled.get(job.key, 0) + n
-        return [chunk for chunks in groups.values() for chunk in chunks]
-
-    def _run(self, batch: list[_Job]) -> None:
+    def _admit(self, job: _Job) -> None:
         try:
-            responses = self.sim.imagine_together([job.request for job in batch])
-        except Exception as exc:
-            if len(batch) > 1:  # one bad request must not fail the others: serve them alone
-                for job in batch:
-                    self._run([job])
-                return
-            batch[0].error = exc
-            batch[0].done.set()
+            track = self.sim.one_shot(job.request)
+        except Exception as exc:  # this request alone is refused
+            job.finish(error=exc)
             return
-        self.batches += 1
-        self.batched_requests += len(batch)
-        for job, response in zip(batch, responses):
-            job.response = {**response, "batched": len(batch)}
-            job.done.set()
+        track.info["job"] = job
+        self.batch.admit(track)
+
+    def _step(self) -> None:
+        try:
+            ended = self.batch.step()
+        except Exception as exc:  # not expected: fail what was running, keep serving
+            for track in self.batch.tracks:
+                track.info["job"].finish(error=exc)
+            self.batch = ContinuousBatch(self.sim.model, self.batch.max_rows)
+            return
+        for track in ended:
+            self._answer(track)
+
+    def _answer(self, track: Track) -> None:
+        self.requests += 1
+        track.info["job"].finish({**self.sim.answer(track), "batched": track.peak})
 
 
-__all__ = ["ImagineServer", "MAX_BATCH_TRAJECTORIES", "ShuttingDown"]
+__all__ = ["ImagineServer", "ShuttingDown"]

@@ -56,22 +56,90 @@ class DecoderConfig:
 
 
 class KVCache:
-    """Keys and values of every layer for B sequences of up to `max_len` tokens."""
+    """Keys and values of every layer for B sequences of up to `max_len` tokens.
+
+    Each sequence has its own length, so sequences that started at different times can run in
+    one batch (continuous batching: trajectories join and leave between steps). A call feeds the
+    same number of new tokens to every sequence: `begin` says where they go, `update` writes a
+    layer's keys and values there and returns what the new tokens attend to, `end` advances.
+    """
 
     def __init__(self, layers: int, batch: int, heads: int, head_dim: int, max_len: int, dtype, device) -> None:
         shape = (layers, batch, heads, max_len, head_dim)
         self.k = torch.zeros(shape, dtype=dtype, device=device)
         self.v = torch.zeros(shape, dtype=dtype, device=device)
-        self.length = 0
+        self.lengths = torch.zeros(batch, dtype=torch.long, device=device)
         self.max_len = max_len
         self.memory_kv: list[tuple[torch.Tensor, torch.Tensor]] | None = None  # cross-attention, per layer
+        # This call's layout: (start, None) when every sequence has the same length (slice writes),
+        # else (positions [B, n], rows [B, 1]); and the attention bias that hides from each new
+        # token what it may not see (0 or -inf; built once per call, added in every layer).
+        self._where: tuple = (0, None)
+        self._bias: torch.Tensor | None = None
+        self._end = 0
+
+    def __len__(self) -> int:
+        return self.k.shape[1]
+
+    def begin(self, n: int) -> torch.Tensor:
+        """Prepare for n new tokens per sequence; returns their absolute positions ([n] when every
+        sequence has the same length, else [B, n])."""
+        offsets = torch.arange(n, device=self.lengths.device)
+        first, last = int(self.lengths.min()), int(self.lengths.max())
+        if last + n > self.max_len:
+            raise ValueError(f"the KV cache holds {self.max_len} tokens; {last} + {n} do not fit")
+        self._end = last + n
+        if first == last:
+            self._where = (first, None)
+            # Token i sees the cache and the new tokens up to itself; one token sees everything.
+            allowed = None if n == 1 else torch.ones(n, first + n, dtype=torch.bool).tril(diagonal=first)
+            positions = first + offsets
+        else:
+            positions = self.lengths[:, None] + offsets  # [B, n]
+            self._where = (positions, torch.arange(len(self))[:, None])
+            # [B, 1, 1, n, L]: broadcast over key/value heads and the query heads of each
+            allowed = (torch.arange(last + n)[None, None, :] <= positions[:, :, None])[:, None, None]
+        self._bias = (
+            None
+            if allowed is None
+            else torch.zeros(allowed.shape, dtype=self.k.dtype).masked_fill_(~allowed, float("-inf"))
+        )
+        return positions
+
+    def update(
+        self, layer: int, k: torch.Tensor, v: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
+        """Store a layer's new keys and values ([B, kv_heads, n, d]); returns all keys and values the
+        new tokens may attend to ([B, kv_heads, L, d]) and the bias to add to their attention
+        scores viewed as [B, kv_heads, query heads per key head, n, L] (None: they see all)."""
+        n = k.shape[2]
+        where, rows = self._where
+        if rows is None:
+            self.k[layer, :, :, where : where + n] = k
+            self.v[layer, :, :, where : where + n] = v
+        else:  # advanced indices around a slice put the indexed dims first: [B, n, kv_heads, d]
+            self.k[layer][rows, :, where] = k.transpose(1, 2)
+            self.v[layer][rows, :, where] = v.transpose(1, 2)
+        return self.k[layer, :, :, : self._end], self.v[layer, :, :, : self._end], self._bias
+
+    def end(self, n: int) -> None:
+        self.lengths = self.lengths + n
+        self._bias = None
 
     def select(self, index: torch.Tensor) -> None:
         """Keep only the sequences at `index` (e.g. drop finished trajectories)."""
         self.k = self.k[:, index]
         self.v = self.v[:, index]
+        self.lengths = self.lengths[index]
         if self.memory_kv is not None:
             self.memory_kv = [(k[index], v[index]) for k, v in self.memory_kv]
+
+    def extend(self, other: KVCache) -> None:
+        """Append the sequences of another cache of the same sizes (new trajectories joining)."""
+        self.k = torch.cat([self.k, other.k], dim=1)
+        self.v = torch.cat([self.v, other.v], dim=1)
+        self.lengths = torch.cat([self.lengths, other.lengths])
+        self.memory_kv = None  # recomputed from the joined conditioning at the next call
 
 
 class SelfAttention(nn.Module):
@@ -97,20 +165,15 @@ class SelfAttention(nn.Module):
             p = self.attn_dropout if self.training else 0.0
             y = F.scaled_dot_product_attention(q, k, v, is_causal=True, dropout_p=p, enable_gqa=kvh != self.heads)
         else:
-            start = cache.length
-            cache.k[layer, :, :, start : start + n] = k
-            cache.v[layer, :, :, start : start + n] = v
-            keys = cache.k[layer, :, :, : start + n]  # [B, kv_heads, L, d]
-            values = cache.v[layer, :, :, : start + n]
+            keys, values, bias = cache.update(layer, k, v)  # [B, kv_heads, L, d]
             # The query heads that share a key/value head become rows of one matmul, so each
             # cached key is read once per token. Plain matmuls: for a query of a token or two
             # against a strided cache view they beat scaled_dot_product_attention on CPU.
             group = self.heads // kvh
             qg = q.reshape(b, kvh, group * n, d)
             scores = (qg @ keys.transpose(-1, -2)) * self.scale  # [B, kv_heads, group * n, L]
-            if n > 1:  # new token i sees the past and the new tokens up to itself
-                allowed = torch.ones(n, start + n, dtype=torch.bool, device=x.device).tril(diagonal=start)
-                scores = scores.masked_fill(~allowed.repeat(group, 1), float("-inf"))
+            if bias is not None:  # rows of qg are (query head in group, new token)
+                scores = (scores.view(b, kvh, group, n, -1) + bias).view(b, kvh, group * n, -1)
             y = (torch.softmax(scores, dim=-1) @ values).reshape(b, self.heads, n, d)
         y = y.transpose(1, 2).reshape(b, n, h)
         return self.resid_dropout(self.proj(y))

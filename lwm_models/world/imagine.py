@@ -9,15 +9,15 @@ episodes finish.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 import torch
 
 from ..errors import ShapeError
 from ..messenger.constants import DEFAULT_MAX_STEPS, NUM_ACTIONS, NUM_CHANNELS
-from .base import ManualBatch, WorldModel
+from .base import Conditioning, ManualBatch, WorldModel
 from .tokens import (
     BLOCK,
     DUMMY_ACTION,
@@ -86,52 +86,147 @@ def _check_inputs(first_obs: np.ndarray, n: int) -> np.ndarray:
     return first
 
 
-@dataclass
-class _Sampler:
-    """Feeds tokens through the model (with or without the KV cache) and samples the next one."""
+class Rows:
+    """The running trajectories of a batch and the model state they carry between steps: their
+    conditioning, KV cache, last done token, temperature and random numbers. Trajectories join
+    (`admit`) and leave (`keep`) between steps, so the batch can be continuous: a one-shot request
+    joins while others are half-way, each at its own place in the cache.
 
-    model: WorldModel
-    cond: object
-    cache: object
-    history: torch.Tensor | None
-    gens: list[torch.Generator]  # one random stream per group of trajectories
-    stream: np.ndarray  # [rows]: the stream of each running trajectory
-    temperature: float
-    stream_rows: list[torch.Tensor] = field(init=False)  # the running rows of each stream
+    A step feeds every row its pending done token and its action, then samples the block's 14
+    tokens. Each row's uniform numbers for all its steps are drawn when it joins, from the random
+    generator it joined with, and a token is drawn by inverting the row's cumulative distribution:
+    what a row samples does not depend on which other rows share its steps.
+    """
 
-    def __post_init__(self) -> None:
-        self._index_streams()
+    def __init__(self, model: WorldModel, use_cache: bool = True) -> None:
+        model.eval()
+        self.model = model
+        self.cache = model.new_cache(0) if use_cache else None
+        self.history: torch.Tensor | None = None  # without a cache: every row's tokens so far
+        self.cond: Conditioning | None = None
+        self.pending = torch.zeros(0, dtype=torch.long)  # each row's last done token
+        self.temperature = torch.zeros(0)
+        self.uniforms = torch.zeros(0, 0, BLOCK - 1)  # [rows, steps, 14]: each row's random numbers
+        self.t = torch.zeros(0, dtype=torch.long)  # steps each row has taken
 
-    def _index_streams(self) -> None:
-        # Rows change only when trajectories end (keep), not at each of a step's 14 samples.
-        self.stream_rows = [torch.from_numpy(np.flatnonzero(self.stream == s)) for s in range(len(self.gens))]
+    def __len__(self) -> int:
+        return len(self.pending)
 
-    def run(self, new_tokens: torch.Tensor) -> torch.Tensor:
+    @torch.inference_mode()
+    def admit(
+        self, cond: Conditioning, first: np.ndarray, max_steps: int, temperature: float, gen: torch.Generator
+    ) -> None:
+        """New rows: n trajectories of up to max_steps from first observations [n, 4, 3] under
+        `cond` (batch n), their random numbers drawn from `gen`. The first block is fed now except
+        its done token, which is fed with the first action as every later block's is."""
+        n = len(first)
+        block = np.zeros((n, BLOCK - 1), dtype=np.int64)
+        block[:, 0] = DUMMY_ACTION
+        block[:, 1 : 1 + OBS_TOKENS] = obs_to_tokens(first)
+        block[:, -1] = FIRST_REWARD_LABEL
+        tokens = torch.from_numpy(block)
+        if self.cache is not None:
+            joining = self.model.new_cache(n)
+            self.model.hidden_states(tokens, cond, joining)
+            self.cache.extend(joining)
+        elif len(self):
+            raise ValueError("without a KV cache every trajectory must start together")
+        else:
+            self.history = tokens
+        self.cond = cond if self.cond is None else Conditioning.cat([self.cond, cond])
+        self.pending = torch.cat([self.pending, torch.zeros(n, dtype=torch.long)])  # the first done is 0
+        self.temperature = torch.cat([self.temperature, torch.full((n,), float(temperature))])
+        uniforms = torch.rand(n, max_steps, BLOCK - 1, generator=gen)
+        steps = max(max_steps, self.uniforms.shape[1])
+        self.uniforms = torch.cat([_pad_steps(self.uniforms, steps), _pad_steps(uniforms, steps)])
+        self.t = torch.cat([self.t, torch.zeros(n, dtype=torch.long)])
+
+    @torch.inference_mode()
+    def step(self, actions: torch.Tensor) -> tuple[np.ndarray, np.ndarray]:
+        """Every row takes its action [rows]; returns the sampled blocks [rows, 14] (12 observation
+        tokens, reward, done) and each token's probability."""
+        uniforms = self.uniforms[torch.arange(len(self)), self.t]  # [rows, 14]
+        self.t = self.t + 1
+        h = self._run(torch.stack([self.pending, actions], 1))
+        tokens, probs = [], []
+        for k in range(OBS_TOKENS + 2):
+            token, p = self._sample(h, 1 + k, uniforms[:, k])
+            tokens.append(token)
+            probs.append(p)
+            if k < OBS_TOKENS + 1:
+                h = self._run(token[:, None])
+        self.pending = tokens[-1]
+        return torch.stack(tokens, 1).numpy(), torch.stack(probs, 1).numpy()
+
+    def keep(self, idx: torch.Tensor) -> None:
+        """Keep only the rows at `idx` (the others' trajectories have ended)."""
+        self.pending = self.pending[idx]
+        self.temperature = self.temperature[idx]
+        self.uniforms = self.uniforms[idx]
+        self.t = self.t[idx]
+        self.cond = self.cond.index(idx)
+        if self.cache is not None:
+            self.cache.select(idx)
+        else:
+            self.history = self.history[idx]
+
+    def _run(self, new_tokens: torch.Tensor) -> torch.Tensor:
         """Feed tokens; the last hidden state predicts the next token."""
         if self.cache is not None:
             return self.model.hidden_states(new_tokens, self.cond, self.cache)[:, -1]
         self.history = torch.cat([self.history, new_tokens], dim=1)
         return self.model.hidden_states(self.history, self.cond)[:, -1]
 
-    def sample(self, h: torch.Tensor, position: int) -> tuple[torch.Tensor, torch.Tensor]:
-        probs = torch.softmax(self.model.next_token_logits(h, position).float() / self.temperature, dim=-1)
-        if len(self.gens) == 1:
-            token = torch.multinomial(probs, 1, generator=self.gens[0]).squeeze(1)
-        else:
-            token = torch.empty(len(probs), dtype=torch.long)
-            for gen, rows in zip(self.gens, self.stream_rows):
-                if len(rows):
-                    token[rows] = torch.multinomial(probs[rows], 1, generator=gen).squeeze(1)
+    def _sample(self, h: torch.Tensor, slot: int, u: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        logits = self.model.next_token_logits(h, slot).float()
+        probs = torch.softmax(logits / self.temperature[:, None], dim=-1)
+        # The first token whose cumulative probability reaches u (clamped: rounding can leave
+        # the last cumulative value a little under 1).
+        token = (probs.cumsum(-1) < u[:, None]).sum(-1).clamp_(max=probs.shape[-1] - 1)
         return token, probs.gather(1, token[:, None]).squeeze(1)
 
-    def keep(self, idx: torch.Tensor) -> None:
-        self.stream = self.stream[idx.numpy()]
-        self._index_streams()
-        self.cond = self.cond.index(idx)
-        if self.cache is not None:
-            self.cache.select(idx)
-        else:
-            self.history = self.history[idx]
+
+def _pad_steps(uniforms: torch.Tensor, steps: int) -> torch.Tensor:
+    return torch.nn.functional.pad(uniforms, (0, 0, 0, steps - uniforms.shape[1]))
+
+
+class Record:
+    """What has been imagined of n trajectories so far: step t of trajectory i at [i, t]."""
+
+    def __init__(self, first: np.ndarray, max_steps: int) -> None:
+        n, steps = len(first), max_steps + 1
+        self.observations = np.zeros((n, steps, NUM_CHANNELS, 3), dtype=np.uint8)
+        self.actions = np.zeros((n, steps), dtype=np.int64)
+        self.rewards = np.zeros((n, steps), dtype=np.float32)
+        self.dones = np.zeros((n, steps), dtype=bool)
+        self.token_probs = np.zeros((n, steps, OBS_TOKENS + 2), dtype=np.float32)
+        self.lengths = np.ones(n, dtype=np.int64)
+        self.observations[:, 0] = first
+
+    def write(self, which: np.ndarray, t: int, actions: np.ndarray, block: np.ndarray, probs: np.ndarray) -> np.ndarray:
+        """Step t of trajectories `which` (their actions, sampled blocks and token probabilities);
+        returns which of them sampled done."""
+        self.actions[which, t] = actions
+        self.observations[which, t] = tokens_to_obs(block[:, :OBS_TOKENS])
+        self.rewards[which, t] = REWARD_VALUES[block[:, OBS_TOKENS]]
+        done = block[:, OBS_TOKENS + 1] == 1
+        self.dones[which, t] = done
+        self.token_probs[which, t] = probs
+        self.lengths[which] += 1
+        return done
+
+    def result(self, manual_version: int = 0) -> Imagination:
+        return Imagination(
+            self.observations, self.actions, self.rewards, self.dones, self.lengths, self.token_probs, manual_version
+        )
+
+
+def condition_rows(cond: Conditioning, n: int) -> Conditioning:
+    """A conditioning on a manual (batch 1, broadcast; or one per trajectory) for n rows."""
+    given = next((t.shape[0] for t in (cond.id_table, cond.memory) if t is not None), n)
+    if given not in (1, n):
+        raise ShapeError(f"manual batch must be 1 or {n}, got {given}")
+    return cond.index(torch.zeros(n, dtype=torch.long)) if given == 1 and n > 1 else cond
 
 
 class Rollout:
@@ -141,10 +236,7 @@ class Rollout:
 
     After `step`, the new observation of trajectory i is `observations[i, t]` for each i in the
     returned indices (those that were running), with `rewards`, `dones` and `token_probs` alike.
-
-    Sampling draws from one random stream seeded with `seed`, or, with `streams` [(count, seed),
-    ...], from one stream per consecutive group of trajectories: the simulator batches concurrent
-    requests that way, and each samples as if it had been imagined alone.
+    Sampling draws from one random stream seeded with `seed`.
     """
 
     def __init__(
@@ -158,59 +250,28 @@ class Rollout:
         seed: int | None = None,
         use_cache: bool = True,
         stop_on_done: bool = True,
-        streams: Sequence[tuple[int, int]] | None = None,
     ) -> None:
         if max_steps < 1:
             raise ValueError(f"max_steps must be >= 1, got {max_steps}")
         if temperature <= 0:
             raise ValueError("temperature must be > 0")
         first = _check_inputs(first_obs, n)
-        model.eval()
-        with torch.inference_mode():  # faster than no_grad for the many small ops of a step
-            cond = model.condition(manual)
-        batch_of_manual = (
-            next(t for t in (cond.id_table, cond.memory) if t is not None).shape[0]
-            if (cond.id_table is not None or cond.memory is not None)
-            else n
-        )
-        if batch_of_manual not in (1, n):
-            raise ShapeError(f"manual batch must be 1 or {n}, got {batch_of_manual}")
-        if batch_of_manual == 1 and n > 1:
-            cond = cond.index(torch.zeros(n, dtype=torch.long))
         self.n, self.max_steps, self.stop_on_done = n, max_steps, stop_on_done
-        steps = max_steps + 1
-        self.observations = np.zeros((n, steps, NUM_CHANNELS, 3), dtype=np.uint8)
-        self.actions = np.zeros((n, steps), dtype=np.int64)
-        self.rewards = np.zeros((n, steps), dtype=np.float32)
-        self.dones = np.zeros((n, steps), dtype=bool)
-        self.token_probs = np.zeros((n, steps, OBS_TOKENS + 2), dtype=np.float32)
-        self.lengths = np.ones(n, dtype=np.int64)
-        self.observations[:, 0] = first
+        self._record = record = Record(first, max_steps)
+        # The record's arrays, written in place at each step (see the class docstring).
+        self.observations, self.actions, self.rewards = record.observations, record.actions, record.rewards
+        self.dones, self.token_probs, self.lengths = record.dones, record.token_probs, record.lengths
         self.active = np.arange(n)
         self.t = 0
-        first_block = np.zeros((n, BLOCK), dtype=np.int64)
-        first_block[:, 0] = DUMMY_ACTION
-        first_block[:, 1 : 1 + OBS_TOKENS] = obs_to_tokens(first)
-        first_block[:, -2] = FIRST_REWARD_LABEL
-        if streams is None:
-            streams = [(n, seed if seed is not None else int(torch.randint(2**31, ()).item()))]
-        if sum(count for count, _ in streams) != n:
-            raise ValueError(f"the streams' counts must add up to {n}, got {[c for c, _ in streams]}")
-        gens = [torch.Generator().manual_seed(int(s)) for _, s in streams]
-        stream = np.repeat(np.arange(len(streams)), [count for count, _ in streams])
-        tokens = torch.from_numpy(first_block)
-        cache = model.new_cache(n) if use_cache else None
-        self._sampler = _Sampler(model, cond, cache, None if use_cache else tokens, gens, stream, temperature)
-        if use_cache:
-            with torch.inference_mode():
-                model.hidden_states(tokens, cond, cache)
-        self._pending: torch.Tensor | None = None  # the last block's done token, fed with the next action
+        seed = seed if seed is not None else int(torch.randint(2**31, ()).item())
+        self._rows = Rows(model, use_cache)
+        cond = condition_rows(model.condition_on(manual), n)
+        self._rows.admit(cond, first, max_steps, temperature, torch.Generator().manual_seed(seed))
 
     @property
     def finished(self) -> bool:
         return len(self.active) == 0 or self.t >= self.max_steps
 
-    @torch.inference_mode()  # faster than no_grad for a step's many small ops (15% measured)
     def step(self, actions: np.ndarray) -> np.ndarray:
         """Advance every running trajectory by one action (`actions[k]` for `active[k]`); returns the
         indices that stepped."""
@@ -221,40 +282,19 @@ class Rollout:
             raise ValueError(
                 f"give {len(self.active)} actions in 0..{NUM_ACTIONS - 1}, got {np.asarray(actions).tolist()}"
             )
-        s, active = self._sampler, self.active
+        active = self.active
         self.t += 1
-        t = self.t
-        self.actions[active, t] = act
-        new = torch.from_numpy(act)[:, None]
-        if self._pending is not None:
-            new = torch.cat([self._pending[:, None], new], dim=1)
-        h = s.run(new)
-        block_tokens, probs = [], []
-        for k in range(OBS_TOKENS + 2):
-            token, p = s.sample(h, t * BLOCK + 1 + k)
-            block_tokens.append(token)
-            probs.append(p)
-            if k < OBS_TOKENS + 1:
-                h = s.run(token[:, None])
-        block = torch.stack(block_tokens, 1).numpy()
-        self.observations[active, t] = tokens_to_obs(block[:, :OBS_TOKENS])
-        self.rewards[active, t] = REWARD_VALUES[block[:, OBS_TOKENS]]
-        done = block[:, OBS_TOKENS + 1] == 1
-        self.dones[active, t] = done
-        self.token_probs[active, t] = torch.stack(probs, 1).numpy()
-        self.lengths[active] += 1
-        self._pending = torch.from_numpy(block[:, OBS_TOKENS + 1])
-        keep = ~done if self.stop_on_done else np.ones_like(done)
-        if not keep.all():
-            idx = torch.from_numpy(np.flatnonzero(keep))
+        block, probs = self._rows.step(torch.from_numpy(act))
+        done = self._record.write(active, self.t, act, block, probs)
+        if self.stop_on_done and done.any():
+            keep = np.flatnonzero(~done)
             self.active = active[keep]
-            self._pending = self._pending[idx]
             if len(self.active):
-                s.keep(idx)
+                self._rows.keep(torch.from_numpy(keep))
         return active
 
     def result(self) -> Imagination:
-        return Imagination(self.observations, self.actions, self.rewards, self.dones, self.lengths, self.token_probs)
+        return self._record.result()
 
 
 @torch.no_grad()
@@ -270,7 +310,6 @@ def imagine(
     seed: int | None = None,
     use_cache: bool = True,
     stop_on_done: bool = True,
-    streams: Sequence[tuple[int, int]] | None = None,
 ) -> Imagination:
     """Imagine `n` trajectories.
 
@@ -280,7 +319,6 @@ def imagine(
     use_cache: False recomputes the whole prefix at every token (for the speed benchmark only).
     stop_on_done: False keeps imagining past a sampled done (benchmarks use it for full-length
         trajectories).
-    streams: independent random streams per group of trajectories (see Rollout).
     """
     if (actions is None) == (policy is None):
         raise ValueError("give either an action sequence or a policy")
@@ -292,7 +330,7 @@ def imagine(
             raise ShapeError(f"actions must be [{n}, >= {max_steps}], got {actions.shape}")
         if ((actions < 0) | (actions >= NUM_ACTIONS)).any():
             raise ValueError(f"actions must be in 0..{NUM_ACTIONS - 1}")
-    rollout = Rollout(model, manual, first_obs, n, max_steps, temperature, seed, use_cache, stop_on_done, streams)
+    rollout = Rollout(model, manual, first_obs, n, max_steps, temperature, seed, use_cache, stop_on_done)
     while not rollout.finished:
         active, t = rollout.active, rollout.t + 1
         if policy is not None:

@@ -29,9 +29,12 @@ import numpy as np
 
 from .. import messages
 from ..errors import LwmError
+from .base import Conditioning
 from .checkpoint import load_checkpoint
+from .continuous import Track, run_alone
 from .frozen_text import FrozenTextEncoder
-from .imagine import Rollout, imagine
+from .imagine import Rollout, condition_rows
+from .manual import ManualBatch
 from .shipped import shipped_checkpoint
 
 
@@ -66,6 +69,7 @@ class Simulator:
         self.manual_source = ""
         self.game = ""  # split:index of the last environment manual
         self._batch = None
+        self._cond: tuple[ManualBatch, Conditioning] | None = None  # the current manual's conditioning
         self.state_path = Path(state_path) if state_path else None
         self.sessions: dict[str, Session] = {}
         self.max_sessions = max_sessions
@@ -182,54 +186,53 @@ class Simulator:
         return np.broadcast_to(starts, (n, *starts.shape[1:]))
 
     def imagine(self, request: dict) -> dict:
-        """One-shot imagination (op `imagine`)."""
-        return self.imagine_together([request])[0]
+        """One-shot imagination (op `imagine`), in a batch of its own."""
+        track = self.one_shot(request)
+        run_alone(self.model, track)
+        return self.answer(track)
 
     @staticmethod
-    def batch_key(request: dict) -> tuple | None:
-        """Requests with equal keys can be imagined in one batch (`imagine_together`); None for
-        one that cannot (a session op)."""
-        if request.get("op", "imagine") != "imagine":
-            return None
-        manual = tuple(request["manual"]) if "manual" in request else None
-        return (manual, int(request.get("max_steps", 32)), float(request.get("temperature", 1.0)))
+    def is_one_shot(request: dict) -> bool:
+        """Whether a request can join a continuous batch (an `imagine`, not a session op)."""
+        return request.get("op", "imagine") == "imagine"
 
-    def imagine_together(self, requests: list[dict]) -> list[dict]:
-        """One-shot requests with the same `batch_key`, imagined as one batch; each request
-        samples from its own seeded stream, so its answer is what it would get alone."""
+    def one_shot(self, request: dict) -> Track:
+        """A one-shot request as a track of a continuous batch (raises RequestError for a request
+        that cannot be served). It reads the manual current now, whenever its steps run."""
         with self.lock:
-            batch, manual, version = self._manual_for(requests[0])
-            max_steps = int(requests[0].get("max_steps", 32))
-            starts, actions, streams = [], [], []
-            for request in requests:
-                s, a = self._trajectories(request, max_steps)
-                starts.append(s)
-                actions.append(a)
-                streams.append((len(a), int(request.get("seed", 0))))
-            im = imagine(
-                self.model,
-                batch,
-                np.concatenate(starts),
-                n=sum(len(a) for a in actions),
-                actions=np.concatenate(actions),
-                max_steps=max_steps,
-                temperature=float(requests[0].get("temperature", 1.0)),
-                streams=streams,
-            )
-        trajectories = im.to_json()
-        out, lo = [], 0
-        for a in actions:
-            out.append(
-                {
-                    "ok": True,
-                    "model": self.model_name,
-                    "manual_version": version,
-                    "manual": manual,
-                    "trajectories": trajectories[lo : lo + len(a)],
-                }
-            )
-            lo += len(a)
-        return out
+            batch, manual, version = self._manual_for(request)
+        max_steps = int(request.get("max_steps", 32))
+        starts, actions = self._trajectories(request, max_steps)
+        return Track(
+            condition_rows(self._conditioning(batch), len(starts)),
+            starts,
+            actions,
+            max_steps,
+            float(request.get("temperature", 1.0)),
+            int(request.get("seed", 0)),
+            info={"manual": manual, "manual_version": version},
+        )
+
+    def _conditioning(self, batch: ManualBatch) -> Conditioning:
+        """The model's conditioning on a manual; the current manual's is computed once, not per
+        request (a few milliseconds of the text encoder each, measured)."""
+        cached = self._cond
+        if cached is not None and cached[0] is batch:
+            return cached[1]
+        cond = self.model.condition_on(batch)
+        if batch is self._batch:
+            self._cond = (batch, cond)
+        return cond
+
+    def answer(self, track: Track) -> dict:
+        """The response to a one-shot request whose track has ended."""
+        return {
+            "ok": True,
+            "model": self.model_name,
+            "manual_version": track.info["manual_version"],
+            "manual": track.info["manual"],
+            "trajectories": track.result().to_json(),
+        }
 
     def _trajectories(self, request: dict, max_steps: int) -> tuple[np.ndarray, np.ndarray]:
         """A one-shot request's start observation and actions per trajectory ([n, 4, 3], [n, max_steps])."""
