@@ -4,7 +4,8 @@ Start from a real first observation and its manual, feed actions (a fixed sequen
 called on the imagined observations), and sample each next block's 12 observation tokens, reward
 and done token (categorical, temperature 1 by default) until done or the time limit. A trajectory
 that has ended is dropped from the batch (and from the KV cache), so the batch shrinks as
-episodes finish.
+episodes finish. `Rows` is that batch; trajectories can also join it between steps, which the
+simulator's continuous batching of requests uses (world/continuous.py).
 """
 
 from __future__ import annotations

@@ -6,8 +6,9 @@ environment's manual (/env/manual) is the default for each new game. /lwm/status
 which manual version is current, so the planner re-plans when it changes. The manual and its
 version survive a restart (parameter `state`).
 
-Concurrent /lwm/imagine calls are served by a pool of executor threads and imagined in batches
-(lwm_models.world.batching): SERVICE_THREADS bounds how many calls wait at once.
+Concurrent /lwm/imagine calls are served by a pool of executor threads; one-shot calls share the
+model's steps (continuous batching, lwm_models.world.batching): SERVICE_THREADS bounds how many
+calls wait at once.
 """
 
 from __future__ import annotations
