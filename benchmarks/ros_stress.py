@@ -6,10 +6,12 @@
     .venv/bin/python benchmarks/ros_stress.py shutdown [--clients 8]
 
 load: `/lwm/imagine` from one client process, then from N client processes at once (each call:
-one trajectory replaying 4 actions, padded with "stay" to 32 steps), against the launcher's
-system without a human (environment, simulator, planner). Prints calls/s and p50/p99 latency
-of both, their ratio (target: N=8 clients get >= 5x the calls/s of one, p99 < 1 s, 0 failures),
-and the latency of `/env/reset` probed during the load (the other nodes still answer).
+one trajectory replaying 4 actions, padded with "stay" to 32 steps, until the imagined episode
+ends; the one client's calls are a random sample of the N clients'), against the launcher's
+system without a human (environment, simulator, planner). Prints calls/s, imagined steps/s and
+p50/p99 latency of both, their ratios (target: N=8 clients get >= 5x the throughput of one,
+p99 < 1 s, 0 failures), and the latency of `/env/reset` probed during the load (the other nodes
+still answer).
 
 malformed: payloads that are not valid messages (invalid JSON, wrong types, 1 MB strings, deeply
 nested JSON, NaN, out-of-range and 10,000-step action lists, unicode) spread over every topic and

@@ -566,3 +566,57 @@ def test_planner_killed_mid_review_resumes_from_the_ledger(tmp_path):
     assert [r["kind"] for r in records].count("report") == 1
     assert sum(r["kind"] == "manual" and r["payload"]["source"] == "env" for r in records) == 1
     assert "resumed from the ledger" in (tmp_path / "logs" / "planner.log").read_text()
+
+
+def test_a_recorded_review_matches_the_ledger_and_plays_back(tmp_path):
+    """./run_nodes.sh --record: every message of a scripted review in an MCAP file, as many per
+    topic as the planner's ledger took (feedback it refused is on /lwm/errors instead); then
+    `lwm ros play` republishes it and a subscriber receives the recorded plans."""
+    from lwm_models import recording
+    from lwm_models.ledger import Ledger
+
+    path = tmp_path / "review.mcap"
+    proc, env, ledger = start_scripted(tmp_path, 60, "--record", str(path))
+    out, _ = proc.communicate(timeout=600)
+    assert proc.returncode == 0, out[-3000:]
+    assert "recorder exit code 0" in out
+    got = list(recording.read(path))
+    by_topic: dict[str, list[str]] = {}
+    for m in got:
+        by_topic.setdefault(m.topic, []).append(m.text)
+    kinds = [r["kind"] for r in Ledger(ledger).history()]
+    refused = [e for e in map(json.loads, by_topic.get("/lwm/errors", [])) if e["where"] == "/review/feedback"]
+    assert len(by_topic["/planner/plan"]) == kinds.count("plan") >= 1
+    assert len(by_topic["/review/feedback"]) == kinds.count("feedback") + len(refused)
+    assert len(by_topic["/planner/label_request"]) == kinds.count("label_request") >= 1
+    assert len(by_topic["/review/labels"]) == kinds.count("labels") >= 1
+    assert len(by_topic["/planner/report"]) == kinds.count("report") == 1
+    assert {"/env/state", "/env/manual", "/lwm/status"} <= set(by_topic)
+    assert [m.latched for m in got if m.topic == "/planner/plan"][0] and not any(
+        m.latched for m in got if m.topic == "/lwm/errors"
+    )
+
+    # Play it back in a fresh domain: a subscriber receives the recorded plans, in order.
+    play_env = {**env, "ROS_DOMAIN_ID": str(1 + (os.getpid() + 61) % 100)}
+    ros = [sys.executable, "-m", "lwm_models.cli.main", "ros"]
+    plans = by_topic["/planner/plan"]
+    echo = subprocess.Popen(
+        [*ros, "echo", "/planner/plan", "--latched", "--count", str(len(plans)), "--timeout", "90"],
+        stdout=subprocess.PIPE,
+        text=True,
+        env=play_env,
+    )
+    played = subprocess.run(
+        [*ros, "play", str(path), "--rate", "50", "--topics", "/planner/plan", "/planner/report", "--wait", "4"],
+        capture_output=True,
+        text=True,
+        env=play_env,
+        timeout=120,
+        start_new_session=True,
+    )
+    assert played.returncode == 0, played.stderr
+    assert f"played {len(plans) + 1} messages on 2 topics" in played.stdout
+    echoed, _ = echo.communicate(timeout=120)
+    assert [json.loads(line) for line in echoed.splitlines()] == [json.loads(text) for text in plans]
+    missing = subprocess.run([*ros, "play", str(tmp_path / "none.mcap")], capture_output=True, text=True, env=play_env)
+    assert missing.returncode == 2 and "cannot read the recording" in missing.stderr

@@ -32,6 +32,7 @@ class NodeSpec:
     params: dict[str, str] = field(default_factory=dict)
     interactive: bool = False  # inherits the terminal (its output is not prefixed or stored)
     final: bool = False  # when it exits with 0, the whole system stops (the scripted human)
+    first: bool = False  # ready before the others start, stopped after they exit (the recorder)
 
     def command(self) -> list[str]:
         cmd = [sys.executable, "-m", self.module]
@@ -142,8 +143,10 @@ def supervise(
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
     procs = [Supervised(n, log_dir, echo) for n in nodes]
-    for p in procs:
+    for p in sorted(procs, key=lambda p: not p.spec.first):
         p.start()
+        if p.spec.first:
+            p.ready.wait(ready_timeout)
     for p in procs:
         if not p.ready.wait(ready_timeout):
             print(
@@ -180,9 +183,16 @@ def supervise(
         time.sleep(0.2)
     stopping = time.monotonic()
     for p in procs:
-        p.signal(signal.SIGTERM)
+        if not p.spec.first:
+            p.signal(signal.SIGTERM)
     exits: dict[str, tuple[int, float]] = {}  # each node's exit code and seconds after SIGTERM
+    last_signalled = False
     while len(exits) < len(procs) and time.monotonic() - stopping < 10:
+        if not last_signalled and all(p.spec.name in exits for p in procs if not p.spec.first):
+            last_signalled = True  # the others have exited: nothing more to record
+            for p in procs:
+                if p.spec.first:
+                    p.signal(signal.SIGTERM)
         for p in procs:
             if p.spec.name not in exits and (code := p.proc.poll()) is not None:
                 exits[p.spec.name] = (code, time.monotonic() - stopping)
@@ -265,6 +275,13 @@ def main(argv: list[str] | None = None) -> int:
         help="comma-separated nodes to start here (env, simulator, planner, human), the others running on "
         "another host of the same ROS domain (default: all)",
     )
+    parser.add_argument(
+        "--record",
+        type=Path,
+        default=None,
+        help="record every topic to this MCAP file (Foxglove and rosbag2's MCAP storage open it; "
+        "`lwm ros play` republishes it)",
+    )
     human = parser.add_mutually_exclusive_group()
     human.add_argument("--scripted", action="store_true", help="the simulated human reviews; exits with a summary")
     human.add_argument("--no-human", action="store_true", help="start no human-feedback node")
@@ -312,6 +329,9 @@ def main(argv: list[str] | None = None) -> int:
         if unknown:
             parser.error(f"--only: unknown nodes {', '.join(sorted(unknown))} (env, simulator, planner, human)")
         nodes = [n for n in nodes if n.name in wanted]
+    if args.record is not None:
+        recorder = NodeSpec("recorder", "lwm_nodes.recorder_node", {"path": str(args.record.resolve())}, first=True)
+        nodes.insert(0, recorder)
     echo = not args.quiet and human != "interactive"  # a person reads the human node's screen
     return supervise(nodes, args.log_dir, args.ready_timeout, args.max_restarts, echo, args.run_for)
 

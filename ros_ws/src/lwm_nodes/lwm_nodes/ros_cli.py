@@ -5,6 +5,8 @@
     lwm ros echo TOPIC [--count N] [--timeout S] [--latched]
     lwm ros call SERVICE JSON|@FILE [--timeout S]
     lwm ros keys [--keys-file FILE] [--reviewer ID ...]
+    lwm ros record FILE [--duration S]
+    lwm ros play FILE [--rate R] [--topics T ...] [--wait S]
 
 Discovery stays on this machine unless ROS_AUTOMATIC_DISCOVERY_RANGE says otherwise.
 
@@ -161,7 +163,47 @@ def cmd_call(node: Node, args) -> int:
     return 0
 
 
-HELP = "ROS 2 graph tools: nodes, topics, services, pub, echo, call, keys"
+def cmd_play(node: Node, args) -> int:
+    """Republish a recording's messages (their CDR bytes) with their original spacing / rate."""
+    from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+    from std_msgs.msg import String
+
+    from lwm_models import recording
+
+    if args.rate <= 0:
+        raise ValueError(f"--rate must be > 0, got {args.rate}")
+    chosen = [m for m in recording.read(args.file) if not args.topics or m.topic in args.topics]
+    publishers = {}
+    for m in chosen:
+        if m.topic not in publishers:
+            durability = DurabilityPolicy.TRANSIENT_LOCAL if m.latched else DurabilityPolicy.VOLATILE
+            qos = QoSProfile(
+                history=HistoryPolicy.KEEP_LAST, depth=50, reliability=ReliabilityPolicy.RELIABLE, durability=durability
+            )
+            publishers[m.topic] = node.create_publisher(String, m.topic, qos)
+    time.sleep(args.wait)  # let subscribers match before the first message
+    began = time.monotonic()
+    for m in chosen:
+        due = began + (m.log_time_ns - chosen[0].log_time_ns) / 1e9 / args.rate
+        time.sleep(max(0.0, due - time.monotonic()))
+        publishers[m.topic].publish(recording.cdr_string(m.text))
+    time.sleep(args.wait)  # acknowledgements, and latched messages for late subscribers
+    print(f"played {len(chosen)} messages on {len(publishers)} topics")
+    return 0
+
+
+def cmd_record(args) -> int:
+    """Run the recorder node in this process until --duration has passed or SIGINT/SIGTERM."""
+    from lwm_nodes.common import run as run_node
+    from lwm_nodes.recorder_node import RecorderNode
+
+    stop = threading.Event()
+    if args.duration > 0:
+        threading.Timer(args.duration, stop.set).start()
+    return run_node(lambda: RecorderNode(str(args.file)), stop)
+
+
+HELP = "ROS 2 graph tools: nodes, topics, services, pub, echo, call, keys, record, play"
 DESCRIPTION = "ROS 2 graph tools for the LWM system"
 
 
@@ -212,6 +254,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     s.add_argument("payload", help="JSON text, or @FILE")
     s.add_argument("--timeout", type=float, default=30.0, help="seconds to wait for the service and its answer")
     s.add_argument("--raw", action="store_true", help="send the text as it is, even if it is not JSON")
+    s = sub.add_parser("record", help="record every topic to an MCAP file (Foxglove and rosbag2 open it)")
+    s.add_argument("file", type=Path, help="the MCAP file to write")
+    s.add_argument("--duration", type=float, default=0.0, help="seconds to record (0: until SIGINT/SIGTERM)")
+    s = sub.add_parser("play", help="republish the messages of an MCAP recording")
+    s.add_argument("file", type=Path, help="an MCAP file from `lwm ros record` or `./run_nodes.sh --record`")
+    s.add_argument("--rate", type=float, default=1.0, help="speed-up of the recorded timing (2: twice as fast)")
+    s.add_argument("--topics", nargs="+", default=None, help="play only these topics (default: all)")
+    s.add_argument("--wait", type=float, default=1.0, help="seconds to let subscribers match, before and after")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -245,7 +295,10 @@ def run(args: argparse.Namespace) -> int:
         print(f"lwm ros: error: ROS 2 is not available ({exc}); run ./run_nodes.sh once", file=sys.stderr)
         return 2
     from lwm_models import messages, signing
+    from lwm_models.errors import LwmError
 
+    if args.cmd == "record":  # the recorder node, run as a node of its own
+        return cmd_record(args)
     if args.cmd == "keys":  # no ROS needed
         try:
             return cmd_keys(args)
@@ -262,8 +315,8 @@ def run(args: argparse.Namespace) -> int:
     try:
         if args.cmd in ("nodes", "topics", "services"):
             return cmd_graph(node, args.cmd, args.settle)
-        return {"pub": cmd_pub, "echo": cmd_echo, "call": cmd_call}[args.cmd](node, args)
-    except (OSError, ValueError, messages.MessageError, signing.SigningError) as exc:
+        return {"pub": cmd_pub, "echo": cmd_echo, "call": cmd_call, "play": cmd_play}[args.cmd](node, args)
+    except (OSError, ValueError, messages.MessageError, signing.SigningError, LwmError) as exc:
         print(f"lwm ros: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
