@@ -17,7 +17,7 @@ LAYERS = [
     {"messenger"},
     {"text"},
     {"data"},
-    {"messages", "ledger", "signing"},
+    {"messages", "ledger", "signing", "recording"},
     {"world"},
     {"agent"},
     {"cli"},
