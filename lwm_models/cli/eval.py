@@ -66,16 +66,26 @@ def run(args: argparse.Namespace) -> int:
         "seconds": round(time.perf_counter() - began, 1),
     }
     print(f"{kind} ({config.get('steps')} steps) — cross-entropy, lower is better")
-    print(f"{'split':<15} {'obs':>7} {'reward':>7} {'done':>7} {'total':>7}   dDist  r-prec  t-prec")
+    print(f"{'split':<15} {'obs':>7} {'reward':>7} {'done':>7} {'total':>7}")
     for name, r in results.items():
         ce = r["cross_entropy"]
-        im = r.get("imagination")
-        tail = (
-            f"   {im['delta_dist']:.2f}   {im['reward_precision']:.2f}    {im['termination_precision']:.2f}"
-            if im
-            else ""
+        print(f"{name:<15} {ce['obs']:7.4f} {ce['reward']:7.4f} {ce['done']:7.4f} {ce['total']:7.4f}")
+    imagined = {name: r["imagination"] for name, r in results.items() if r.get("imagination")}
+    if imagined:
+        # Precision and recall of imagined rewards and terminations against the real episodes; the
+        # consistency rates are 0 in real episodes (identity changes and vanishings per transition
+        # and entity channel, jumps per avatar move, rewards with nothing within one cell).
+        print(
+            f"{'imagination':<15} {'dDist':>6} {'r-prec':>6} {'r-rec':>6} {'t-prec':>6} {'t-rec':>6} "
+            f"{'id-chg':>7} {'jump':>7} {'vanish':>7} {'r-far':>6}"
         )
-        print(f"{name:<15} {ce['obs']:7.4f} {ce['reward']:7.4f} {ce['done']:7.4f} {ce['total']:7.4f}{tail}")
+        for name, im in imagined.items():
+            print(
+                f"{name:<15} {im['delta_dist']:6.2f} {im['reward_precision']:6.2f} {im['reward_recall']:6.2f} "
+                f"{im['termination_precision']:6.2f} {im['termination_recall']:6.2f} "
+                f"{im['identity_change_rate']:7.2%} {im['avatar_jump_rate']:7.2%} {im['vanish_rate']:7.2%} "
+                f"{im['reward_without_reach']:6.2f}"
+            )
     if args.plot:
         curves = {name: loss_by_prefix(model, data, limit=args.loss_episodes) for name, data in splits.items()}
         record["loss_by_prefix"] = curves
