@@ -1,0 +1,46 @@
+#!/usr/bin/env bash
+# One chunk of a long world-model run (issue 10), started again each session until its CPU budget
+# is spent: the same command resumes exactly from RUN/last (`lwm train`, see README "Long runs").
+#
+#   scripts/long_run.sh KIND [MAX_MINUTES]     KIND: emma observational standard gpthard
+#
+# The recipe is the pilot's winner (results/pilot_partial.txt: lr 1e-3 beat 5e-4 at equal CPU
+# time), for every kind alike so that their figures compare: small preset, lr 1e-3, warm-up 300,
+# cosine to 20,000 steps, one thread, NewAll-dev every 500 steps on 1,500 episodes, 8 CPU-hours.
+# The code that trains is a git worktree of a fixed commit (CODE_COMMIT, in runs/code-long), so
+# that work on main does not change a run half-way; the run lives in runs/long-KIND (not in git:
+# its last/ is 11 MB). MAX_MINUTES (default 155) ends this chunk with a save: a session lasts 180.
+# Runs in the background; progress in runs/long-KIND.log and runs/long-KIND/metrics.jsonl.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+CODE_COMMIT=${CODE_COMMIT:-f5295b0}
+DATA=${DATA:-data/human}
+kind=${1:?usage: scripts/long_run.sh KIND [MAX_MINUTES]}
+minutes=${2:-155}
+case "$kind" in
+    emma | observational | standard | gpthard) ;;
+    *) echo "long_run: unknown kind $kind (emma observational standard gpthard)" >&2; exit 2 ;;
+esac
+if [ ! -f "$DATA/index.json" ]; then
+    echo "long_run: no dataset at $DATA (see README: lwm data generate)" >&2
+    exit 2
+fi
+code=runs/code-long
+if [ ! -d "$code" ]; then
+    git worktree add -f "$code" "$CODE_COMMIT"
+    for d in .venv data runs; do ln -s "../../$d" "$code/$d"; done
+fi
+out=runs/long-$kind
+if pgrep -f -- "--out $out " > /dev/null; then
+    echo "long_run: $out is already training" >&2
+    exit 2
+fi
+cmd=(.venv/bin/python -m lwm_models.cli.main train --data "$DATA" --out "$out" --kind "$kind" --preset small
+     --steps 20000 --lr 1e-3 --warmup 300 --cosine --threads 1 --eval-every 500 --eval-episodes 1500
+     --cpu-budget-minutes 480 --max-minutes "$minutes" --no-progress)
+mkdir -p "$out"
+echo "${cmd[*]}" > "$out/cmd.txt"
+echo "$(date -Is) long_run: $kind at $CODE_COMMIT, chunk of at most $minutes minutes" >> "runs/long-$kind.log"
+(cd "$code" && nohup "${cmd[@]}" >> "runs/long-$kind.log" 2>&1 &)
+echo "long_run: $kind started in the background (log: runs/long-$kind.log)"
