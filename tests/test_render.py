@@ -328,3 +328,15 @@ def test_play_main_rejects_bad_arguments(capsys):
     assert play_main(["--start", "24"]) == 2
     assert play_main(["--max-steps", "0"]) == 2
     assert "invalid choice" in capsys.readouterr().err
+
+
+def test_board_cells_follow_the_picture_rules():
+    # The review page draws these cells: the avatar over an entity, two entities sharing a cell.
+    from lwm_models.messenger.render import board
+
+    obs = np.array([[2, 3, 3], [5, 3, 3], [10, 6, 6], [15, 6, 6]], dtype=np.uint8)
+    cells = {(c["row"], c["col"]): c for c in board(obs)}
+    assert set(cells) == {(3, 3), (6, 6)}
+    assert cells[(3, 3)]["symbol"] == "*" and sorted(cells[(3, 3)]["under"]) == ["airplane", "bird"]
+    assert cells[(6, 6)]["symbol"] == "@" and cells[(6, 6)]["under"] == ["ball"]
+    assert all(c["colour"].startswith("#") and len(c["colour"]) == 7 for c in cells.values())

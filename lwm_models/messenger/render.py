@@ -258,6 +258,27 @@ def legend(obs: np.ndarray) -> str:
     return "  ".join(parts)
 
 
+def _hex(rgb: tuple[int, int, int]) -> str:
+    return "#" + "".join(f"{v:02x}" for v in rgb)
+
+
+def identity_style(name: str) -> tuple[str, str]:
+    """The letter and colour ("#rrggbb") an identity is drawn with."""
+    return IDENTITY_LETTERS[name], _hex(_RGB_IDENTITY[name])
+
+
+def board(obs: np.ndarray) -> list[dict]:
+    """The non-empty cells as the pictures draw them, for a page that draws the board itself:
+    row, col, symbol, colour ("#rrggbb") and the identities under the symbol (overlaps)."""
+    out = []
+    for r, row in enumerate(_cells(_as_grid(obs))):
+        for c, cell in enumerate(row):
+            if cell.colour_key != "empty" or cell.symbol != EMPTY_LETTER:
+                colour = _hex(_rgb(cell))
+                out.append({"row": r, "col": c, "symbol": cell.symbol, "colour": colour, "under": cell.hidden})
+    return out
+
+
 # --------------------------------------------------------------------------- images
 def _font(size: int) -> ImageFont.ImageFont | ImageFont.FreeTypeFont:
     """PIL's default font at roughly `size` pixels (older Pillow has only the fixed bitmap font)."""

@@ -4,6 +4,7 @@ setup(
     name="lwm_nodes",
     version="0.1.0",
     packages=["lwm_nodes"],
+    package_data={"lwm_nodes": ["web/*.html"]},
     data_files=[
         ("share/ament_index/resource_index/packages", ["resource/lwm_nodes"]),
         ("share/lwm_nodes", ["package.xml"]),

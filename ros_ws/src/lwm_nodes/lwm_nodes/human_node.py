@@ -15,6 +15,9 @@ and never approves a plan whose shown trajectory dies; it prints a summary when 
 report arrives and exits. With language:=true its first answer in each review is language
 feedback: the true manual in other words, published on /feedback/manual (texts:= the description
 files to draw them from; default: the project's generator).
+With page_port:=PORT (`./run_nodes.sh --page PORT`) it serves the review page in the browser
+instead of reading the terminal (lwm_nodes/review_page.py, on page_host, default localhost): the
+plan and its futures drawn, the manual's legend, the answers and the execution report.
 Everything it publishes is signed as reviewer `reviewer` (default: scripted or terminal) with that
 reviewer's key from `keys_file` (lwm_nodes.trust); the planner and the simulator take nothing else.
 """
@@ -30,11 +33,13 @@ import numpy as np
 from lwm_interfaces.srv import Json
 
 from lwm_models.agent.imaginer import ServiceImaginer
+from lwm_models.agent.review_view import plan_view, report_view
 from lwm_models.agent.reviewer import ScriptedReviewer
 from lwm_models.data.splits import load_split
 from lwm_models.messenger.constants import ACTION_NAMES
 from lwm_models.messenger.render import render_ascii
 from lwm_nodes.common import FEEDBACK, LATCHED, JsonNode, json_caller, run
+from lwm_nodes.review_page import ReviewPage
 from lwm_nodes.trust import Signer
 
 
@@ -73,11 +78,17 @@ class HumanNode(JsonNode):
         self.json_subscription("/planner/plan", "plan", self.on_plan, LATCHED)
         self.json_subscription("/planner/label_request", "label_request", self.on_label_request, LATCHED)
         self.json_subscription("/planner/report", "execution_report", self.on_report, LATCHED)
+        self.page = None
+        port = int(p("page_port", 0).value)
+        if port and not self.scripted:
+            self.page = ReviewPage(p("page_host", "127.0.0.1").value, port, self.on_page_feedback, self.on_page_manual)
+            self.json_subscription("/lwm/status", "status", lambda s: self.page.push("status", s), LATCHED)
+            print(f"PAGE review page at {self.page.url}", flush=True)
         # The scripted reviewer may imagine through /lwm/imagine (filtered BC), which must not block
         # the executor that delivers the answer: it works in its own thread.
         self.work: queue.Queue = queue.Queue()
         threading.Thread(target=self._work, daemon=True).start()
-        if not self.scripted:
+        if not self.scripted and self.page is None:
             threading.Thread(target=self.read_commands, daemon=True).start()
 
     def on_state(self, payload: dict) -> None:
@@ -97,6 +108,10 @@ class HumanNode(JsonNode):
         ):
             return  # a latched repeat
         self.plan = plan
+        if self.page is not None:
+            self.page.push("plan", plan_view(plan))
+            show(plan, quiet=True)
+            return
         show(plan, self.quiet)
         if self.scripted:
             self.work.put(lambda: self.answer_scripted(plan))
@@ -156,7 +171,23 @@ class HumanNode(JsonNode):
                 flush=True,
             )
 
+    def on_page_feedback(self, body: dict) -> None:
+        """An answer from the page; the schema (checked before publishing) refuses a wrong one."""
+        allowed = ("review_id", "plan_id", "decision", "corrections", "rounds")
+        self.publish_feedback({k: v for k, v in body.items() if k in allowed})
+        self.get_logger().info(f"page: {body.get('decision')} on plan {body.get('plan_id')}")
+
+    def on_page_manual(self, descriptions: list[str]) -> None:
+        self.publish_manual({"descriptions": descriptions, "source": "human"})
+        self.get_logger().info("page: a new manual")
+
+    def close(self) -> None:
+        if self.page is not None:
+            self.page.close()
+
     def on_report(self, report: dict) -> None:
+        if self.page is not None:
+            self.page.push("report", report_view(report))
         print(
             f"SUMMARY review {report['review_id']}: plan {report['plan_id']} after {report['revisions']} revision(s); "
             f"imagined return {report['imagined_return']:+.2f}, real return {report['real_return']:+.2f}, "

@@ -77,7 +77,7 @@ class Supervised:
                 log.flush()
                 if line.startswith("READY"):
                     self.ready.set()
-                if self.echo or line.startswith("SUMMARY"):  # the loop's outcome is shown even when quiet
+                if self.echo or line.startswith(("SUMMARY", "PAGE")):  # the outcome and the page's address
                     print(stamped, flush=True)
 
     def signal(self, sig: int) -> None:
@@ -99,8 +99,9 @@ def default_nodes(
     texts: list[str] | None = None,
     keys_file: str = "",
     trusted: str = "",
+    page_port: int = 0,
 ) -> list[NodeSpec]:
-    """human: 'scripted', 'interactive' or 'none'. The planner loads no world model: only the
+    """human: 'scripted', 'interactive', 'page' (the browser, page_port) or 'none'. The planner loads no world model: only the
     simulator gets the checkpoint. keys_file: the reviewers' keys; trusted: the reviewers the
     simulator and the planner take feedback from (comma-separated; empty: all in the key file)."""
     trust = {**({"keys_file": keys_file} if keys_file else {}), **({"trusted": trusted} if trusted else {})}
@@ -125,6 +126,8 @@ def default_nodes(
     if human == "scripted":
         params = {"scripted": "true", **signs, **(reviewer or {})}
         nodes.append(NodeSpec("human", "lwm_nodes.human_node", params, final=True))
+    elif human == "page":
+        nodes.append(NodeSpec("human", "lwm_nodes.human_node", {**signs, "page_port": str(page_port)}))
     elif human == "interactive":
         nodes.append(NodeSpec("human", "lwm_nodes.human_node", {**signs}, interactive=True, final=True))
     return nodes
@@ -285,11 +288,20 @@ def main(argv: list[str] | None = None) -> int:
     human = parser.add_mutually_exclusive_group()
     human.add_argument("--scripted", action="store_true", help="the simulated human reviews; exits with a summary")
     human.add_argument("--no-human", action="store_true", help="start no human-feedback node")
+    human.add_argument(
+        "--page",
+        type=int,
+        metavar="PORT",
+        default=None,
+        help="review in the browser: the human-feedback node serves the review page on localhost:PORT",
+    )
     args = parser.parse_args(argv)
     ros_environment()
     os.environ.setdefault("ROS_LOG_DIR", str(args.log_dir.resolve() / "ros"))
     if args.scripted:
         human = "scripted"
+    elif args.page is not None:
+        human = "page"
     elif args.no_human or not sys.stdin.isatty():
         human = "none"
     else:
@@ -302,7 +314,7 @@ def main(argv: list[str] | None = None) -> int:
     keys_file = args.keys_file if args.keys_file is not None else args.log_dir / "reviewer_keys.json"
     # A new file gets both reviewers; an existing one (perhaps shared across hosts) only gains the
     # one this launch's human node signs as.
-    needed = {"scripted": ["scripted"], "interactive": ["terminal"]}.get(human, [])
+    needed = {"scripted": ["scripted"], "interactive": ["terminal"], "page": ["terminal"]}.get(human, [])
     try:
         keys = signing.ensure_key_file(keys_file, needed if keys_file.exists() else signing.DEFAULT_REVIEWERS)
     except (OSError, signing.SigningError) as exc:
@@ -322,6 +334,7 @@ def main(argv: list[str] | None = None) -> int:
         args.texts,
         str(keys_file),
         args.trusted,
+        args.page or 0,
     )
     if args.only:
         wanted = {name.strip() for name in args.only.split(",") if name.strip()}
