@@ -8,16 +8,19 @@
 # time), for every kind alike so that their figures compare: small preset, lr 1e-3, warm-up 300,
 # cosine to 20,000 steps, one thread, NewAll-dev every 500 steps on 1,500 episodes, 8 CPU-hours.
 # The code that trains is a git worktree of a fixed commit (CODE_COMMIT, in runs/code-long), so
-# that work on main does not change a run half-way; the run lives in runs/long-KIND (not in git:
-# its last/ is 11 MB). MAX_MINUTES (default 155) ends this chunk with a save: a session lasts 180.
+# that work on main does not change a run half-way. The run lives in runs/long-KIND, which IS in
+# git (last/ with the optimizer state is 11 MB): a session's machine and work tree do not survive
+# to the next, so the resumable state must be committed at the end of each chunk
+# (scripts/keep_run.sh KIND). MAX_MINUTES (default 145) ends this chunk with an evaluation and a
+# save: a session lasts 180 minutes, and the state must be committed before it ends.
 # Runs in the background; progress in runs/long-KIND.log and runs/long-KIND/metrics.jsonl.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
-CODE_COMMIT=${CODE_COMMIT:-f5295b0}
+CODE_COMMIT=${CODE_COMMIT:-074b716}
 DATA=${DATA:-data/human}
 kind=${1:?usage: scripts/long_run.sh KIND [MAX_MINUTES]}
-minutes=${2:-155}
+minutes=${2:-145}
 case "$kind" in
     emma | observational | standard | gpthard) ;;
     *) echo "long_run: unknown kind $kind (emma observational standard gpthard)" >&2; exit 2 ;;
