@@ -43,6 +43,7 @@ def run_game(index: int, seed: int, args, work: Path) -> dict:
     cmd += ["--index", str(index), "--seed", str(seed), "--log-dir", str(logs), "--ledger", str(ledger)]
     cmd += ["--teach", args.teach] + (["--texts", *args.texts] if args.texts else [])
     cmd += ["--language"] if args.language else []
+    cmd += ["--constrained"] if args.constrained else []
     if args.iterations:
         cmd += ["--iterations", str(args.iterations)]
     env = {**os.environ, "ROS_DOMAIN_ID": str(args.domain), "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
@@ -100,6 +101,12 @@ def main() -> int:
         help="the scripted reviewer first gives language feedback (the true manual in other words)",
     )
     p.add_argument("--iterations", type=int, default=None, help="online-imitation rounds (default: Table 3's 40)")
+    p.add_argument(
+        "--constrained",
+        action=argparse.BooleanOptionalAction,
+        default=False,
+        help="the planner imagines under the game's rules (decoding constraints)",
+    )
     default_texts = [str(TEXTS / "text_train.json"), str(TEXTS / "text_val.json")] if TEXTS.is_dir() else None
     p.add_argument("--texts", nargs="*", default=default_texts, help="description files of the game's manuals")
     p.add_argument("--records", type=Path, default=ROOT / "results" / "table3_records.jsonl")

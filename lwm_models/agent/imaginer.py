@@ -50,6 +50,7 @@ class ServiceImaginer:
 
     call: Callable[[dict], dict]
     retry_for: float = 120.0
+    constrained: bool = False  # imagine under the game's rules (world/constraints.py)
     stats: CallStats = field(default_factory=CallStats)
 
     def request(self, payload: dict) -> dict:
@@ -91,6 +92,8 @@ class ServiceImaginer:
 
     def _rollout_once(self, starts, policy, n, max_steps, seed, temperature) -> Imagination:
         req = {"op": "open", "n": n, "max_steps": max_steps, "seed": int(seed), "temperature": temperature}
+        if self.constrained:
+            req["constrained"] = True
         req.update({"observation": starts.tolist()} if starts.ndim == 2 else {"observations": starts.tolist()})
         opened = self.request(req)
         sid = opened["session"]
@@ -119,6 +122,8 @@ class ServiceImaginer:
 
         def once() -> Imagination:
             req = {"actions": [list(map(int, a)) for a in actions], "max_steps": max_steps, "seed": int(seed)}
+            if self.constrained:
+                req["constrained"] = True
             req.update({"observation": starts.tolist()} if starts.ndim == 2 else {"observations": starts.tolist()})
             answer = self.request(req)
             out = _Trajectories(len(actions), max_steps, starts, answer.get("manual_version", 0))
@@ -181,12 +186,21 @@ class LocalImaginer:
     world: WorldModel
     manual: ManualBatch
     manual_version: int = 0
+    constrained: bool = False
 
     def rollout(self, starts, policy, n=None, max_steps=32, seed=0, temperature=1.0) -> Imagination:
         starts = np.asarray(starts, dtype=np.uint8)
         n = n or (1 if starts.ndim == 2 else len(starts))
         return imagine(
-            self.world, self.manual, starts, n=n, policy=policy, max_steps=max_steps, seed=seed, temperature=temperature
+            self.world,
+            self.manual,
+            starts,
+            n=n,
+            policy=policy,
+            max_steps=max_steps,
+            seed=seed,
+            temperature=temperature,
+            constrained=self.constrained,
         )
 
 

@@ -29,6 +29,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--texts", nargs="+", default=None, metavar="PATH", help="re-draw the manuals from these description files"
     )
+    p.add_argument(
+        "--constrained",
+        action="store_true",
+        help="also imagine under the game's rules (decoding constraints) and report those figures beside the raw ones",
+    )
     p.add_argument("--seed", type=nonnegative_int, default=0, help="seed of the imagination and of re-drawn manuals")
     p.add_argument("--out", type=Path, default=None, help="write the results as JSON here")
     p.add_argument("--plot", type=Path, default=None, help="write loss against history length as PNG here")
@@ -55,7 +60,9 @@ def run(args: argparse.Namespace) -> int:
             redraw_manuals(data, pools, encoder, args.seed)
         splits[name] = data
     began = time.perf_counter()
-    results = evaluate_model(model, splits, args.loss_episodes, args.imagination_episodes, args.seed)
+    results = evaluate_model(
+        model, splits, args.loss_episodes, args.imagination_episodes, args.seed, constrained=args.constrained
+    )
     record = {
         "checkpoint": str(args.checkpoint),
         "kind": kind,
@@ -71,17 +78,20 @@ def run(args: argparse.Namespace) -> int:
         ce = r["cross_entropy"]
         print(f"{name:<15} {ce['obs']:7.4f} {ce['reward']:7.4f} {ce['done']:7.4f} {ce['total']:7.4f}")
     imagined = {name: r["imagination"] for name, r in results.items() if r.get("imagination")}
+    for name, r in results.items():
+        if "imagination_constrained" in r:
+            imagined[f"{name} (rules)"] = r["imagination_constrained"]
     if imagined:
         # Precision and recall of imagined rewards and terminations against the real episodes; the
         # consistency rates are 0 in real episodes (identity changes and vanishings per transition
         # and entity channel, jumps per avatar move, rewards with nothing within one cell).
         print(
-            f"{'imagination':<15} {'dDist':>6} {'r-prec':>6} {'r-rec':>6} {'t-prec':>6} {'t-rec':>6} "
+            f"{'imagination':<22} {'dDist':>6} {'r-prec':>6} {'r-rec':>6} {'t-prec':>6} {'t-rec':>6} "
             f"{'id-chg':>7} {'jump':>7} {'vanish':>7} {'r-far':>6}"
         )
         for name, im in imagined.items():
             print(
-                f"{name:<15} {im['delta_dist']:6.2f} {im['reward_precision']:6.2f} {im['reward_recall']:6.2f} "
+                f"{name:<22} {im['delta_dist']:6.2f} {im['reward_precision']:6.2f} {im['reward_recall']:6.2f} "
                 f"{im['termination_precision']:6.2f} {im['termination_recall']:6.2f} "
                 f"{im['identity_change_rate']:7.2%} {im['avatar_jump_rate']:7.2%} {im['vanish_rate']:7.2%} "
                 f"{im['reward_without_reach']:6.2f}"

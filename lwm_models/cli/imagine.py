@@ -53,6 +53,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--texts", nargs="+", default=None, metavar="PATH", help="draw the manual from these description files"
     )
+    p.add_argument(
+        "--constrained", action="store_true", help="sample under the game's rules (decoding constraints), not raw"
+    )
     p.add_argument("--png", type=Path, default=None, help="write the first trajectory as a PNG strip")
     p.add_argument("--json", action="store_true", help="print the trajectories as JSON")
     p.set_defaults(func=run)
@@ -86,7 +89,16 @@ def run(args: argparse.Namespace) -> int:
     batch = model.read_manual(manual, model.frozen_text_encoder(), list(game.triples))
     if args.actions:
         acts = (args.actions + [4] * args.max_steps)[: args.max_steps]
-        im = imagine(model, batch, first, n=args.n, actions=np.array(acts), max_steps=args.max_steps, seed=args.seed)
+        im = imagine(
+            model,
+            batch,
+            first,
+            n=args.n,
+            actions=np.array(acts),
+            max_steps=args.max_steps,
+            seed=args.seed,
+            constrained=args.constrained,
+        )
     else:
         im = imagine(
             model,
@@ -96,6 +108,7 @@ def run(args: argparse.Namespace) -> int:
             policy=expert_policy(game, args.seed, args.policy),
             max_steps=args.max_steps,
             seed=args.seed,
+            constrained=args.constrained,
         )
     if args.json:
         print(json.dumps(im.to_json()))

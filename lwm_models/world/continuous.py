@@ -4,7 +4,8 @@ leave it at their own last step, as inference servers batch token generation.
 A one-shot request replays known action sequences, so its trajectories need nothing from outside
 between steps, and any number of requests can share each step of the model (a step of 16 rows
 costs about 1.6x a step of one, measured). Requests need not match: each row keeps its own
-conditioning (manual), temperature, time limit, random stream and place in the KV cache. A batch
+conditioning (manual), temperature, time limit, decoding constraints, random stream and place in
+the KV cache. A batch
 that waited for its longest trajectory before taking new requests (this module's predecessor) ran
 most steps for a few long trajectories while new requests queued.
 """
@@ -38,6 +39,7 @@ class Track:
     max_steps: int
     temperature: float = 1.0
     seed: int = 0
+    constrained: bool = False  # sampled under the game's rules (world/constraints.py)
     info: dict[str, Any] = field(default_factory=dict)
     t: int = 0  # steps taken
     peak: int = 1  # the most requests that shared a step with this one (itself included)
@@ -74,7 +76,7 @@ class ContinuousBatch:
 
     def admit(self, track: Track) -> None:
         gen = torch.Generator().manual_seed(track.seed)
-        self.rows.admit(track.cond, track.first, track.max_steps, track.temperature, gen)
+        self.rows.admit(track.cond, track.first, track.max_steps, track.temperature, gen, track.constrained)
         self.tracks.append(track)
 
     def step(self) -> list[Track]:

@@ -19,6 +19,7 @@ import torch
 from ..errors import ShapeError
 from ..messenger.constants import DEFAULT_MAX_STEPS, NUM_ACTIONS, NUM_CHANNELS
 from .base import Conditioning, ManualBatch, WorldModel
+from .constraints import StepRules
 from .tokens import (
     BLOCK,
     DUMMY_ACTION,
@@ -109,17 +110,27 @@ class Rows:
         self.temperature = torch.zeros(0)
         self.uniforms = torch.zeros(0, 0, BLOCK - 1)  # [rows, steps, 14]: each row's random numbers
         self.t = torch.zeros(0, dtype=torch.long)  # steps each row has taken
+        self.last_obs = torch.zeros(0, OBS_TOKENS, dtype=torch.long)  # each row's last observation tokens
+        self.constrained = torch.zeros(0, dtype=torch.bool)  # rows sampled under the game's rules
+        self.limit = torch.zeros(0, dtype=torch.long)  # each row's time limit (max steps)
 
     def __len__(self) -> int:
         return len(self.pending)
 
     @torch.inference_mode()
     def admit(
-        self, cond: Conditioning, first: np.ndarray, max_steps: int, temperature: float, gen: torch.Generator
+        self,
+        cond: Conditioning,
+        first: np.ndarray,
+        max_steps: int,
+        temperature: float,
+        gen: torch.Generator,
+        constrained: bool = False,
     ) -> None:
         """New rows: n trajectories of up to max_steps from first observations [n, 4, 3] under
-        `cond` (batch n), their random numbers drawn from `gen`. The first block is fed now except
-        its done token, which is fed with the first action as every later block's is."""
+        `cond` (batch n), their random numbers drawn from `gen`, sampled under the game's rules if
+        `constrained` (world/constraints.py). The first block is fed now except its done token,
+        which is fed with the first action as every later block's is."""
         n = len(first)
         block = np.zeros((n, BLOCK - 1), dtype=np.int64)
         block[:, 0] = DUMMY_ACTION
@@ -141,6 +152,9 @@ class Rows:
         steps = max(max_steps, self.uniforms.shape[1])
         self.uniforms = torch.cat([_pad_steps(self.uniforms, steps), _pad_steps(uniforms, steps)])
         self.t = torch.cat([self.t, torch.zeros(n, dtype=torch.long)])
+        self.last_obs = torch.cat([self.last_obs, tokens[:, 1 : 1 + OBS_TOKENS]])
+        self.constrained = torch.cat([self.constrained, torch.full((n,), constrained)])
+        self.limit = torch.cat([self.limit, torch.full((n,), max_steps, dtype=torch.long)])
 
     @torch.inference_mode()
     def step(self, actions: torch.Tensor) -> tuple[np.ndarray, np.ndarray]:
@@ -149,14 +163,17 @@ class Rows:
         uniforms = self.uniforms[torch.arange(len(self)), self.t]  # [rows, 14]
         self.t = self.t + 1
         h = self._run(torch.stack([self.pending, actions], 1))
+        rules = StepRules(self.last_obs, actions, self.t >= self.limit) if bool(self.constrained.any()) else None
         tokens, probs = [], []
         for k in range(OBS_TOKENS + 2):
-            token, p = self._sample(h, 1 + k, uniforms[:, k])
+            allowed = None if rules is None else rules.allowed(k, tokens) | ~self.constrained[:, None]
+            token, p = self._sample(h, 1 + k, uniforms[:, k], allowed)
             tokens.append(token)
             probs.append(p)
             if k < OBS_TOKENS + 1:
                 h = self._run(token[:, None])
         self.pending = tokens[-1]
+        self.last_obs = torch.stack(tokens[:OBS_TOKENS], 1)
         return torch.stack(tokens, 1).numpy(), torch.stack(probs, 1).numpy()
 
     def keep(self, idx: torch.Tensor) -> None:
@@ -165,6 +182,9 @@ class Rows:
         self.temperature = self.temperature[idx]
         self.uniforms = self.uniforms[idx]
         self.t = self.t[idx]
+        self.last_obs = self.last_obs[idx]
+        self.constrained = self.constrained[idx]
+        self.limit = self.limit[idx]
         self.cond = self.cond.index(idx)
         if self.cache is not None:
             self.cache.select(idx)
@@ -178,13 +198,30 @@ class Rows:
         self.history = torch.cat([self.history, new_tokens], dim=1)
         return self.model.hidden_states(self.history, self.cond)[:, -1]
 
-    def _sample(self, h: torch.Tensor, slot: int, u: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        logits = self.model.next_token_logits(h, slot).float()
-        probs = torch.softmax(logits / self.temperature[:, None], dim=-1)
+    def _sample(
+        self, h: torch.Tensor, slot: int, u: torch.Tensor, allowed: torch.Tensor | None = None
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """A token per row, from the model's distribution restricted to `allowed` if given; with
+        the model's own (unrestricted) probability of it, which is what confidence reports."""
+        logits = self.model.next_token_logits(h, slot).float() / self.temperature[:, None]
+        probs = torch.softmax(logits, dim=-1)
+        draw = probs if allowed is None else torch.softmax(logits.masked_fill(~allowed, -torch.inf), dim=-1)
         # The first token whose cumulative probability reaches u (clamped: rounding can leave
-        # the last cumulative value a little under 1).
-        token = (probs.cumsum(-1) < u[:, None]).sum(-1).clamp_(max=probs.shape[-1] - 1)
+        # the last cumulative value a little under 1), then the last allowed one at or before it
+        # (rounding again: a disallowed token of probability 0 must never be drawn).
+        token = (draw.cumsum(-1) < u[:, None]).sum(-1).clamp_(max=draw.shape[-1] - 1)
+        if allowed is not None:
+            token = _allowed_at_or_before(allowed, token)
         return token, probs.gather(1, token[:, None]).squeeze(1)
+
+
+def _allowed_at_or_before(allowed: torch.Tensor, token: torch.Tensor) -> torch.Tensor:
+    """Each row's token if allowed, else the nearest allowed token below it, else the first allowed."""
+    vocab = torch.arange(allowed.shape[1])
+    below = allowed & (vocab[None, :] <= token[:, None])
+    last_below = torch.where(below, vocab, -1).amax(1)
+    first = allowed.float().argmax(1)
+    return torch.where(last_below >= 0, last_below, first)
 
 
 def _pad_steps(uniforms: torch.Tensor, steps: int) -> torch.Tensor:
@@ -251,6 +288,7 @@ class Rollout:
         seed: int | None = None,
         use_cache: bool = True,
         stop_on_done: bool = True,
+        constrained: bool = False,
     ) -> None:
         if max_steps < 1:
             raise ValueError(f"max_steps must be >= 1, got {max_steps}")
@@ -267,7 +305,7 @@ class Rollout:
         seed = seed if seed is not None else int(torch.randint(2**31, ()).item())
         self._rows = Rows(model, use_cache)
         cond = condition_rows(model.condition_on(manual), n)
-        self._rows.admit(cond, first, max_steps, temperature, torch.Generator().manual_seed(seed))
+        self._rows.admit(cond, first, max_steps, temperature, torch.Generator().manual_seed(seed), constrained)
 
     @property
     def finished(self) -> bool:
@@ -311,6 +349,7 @@ def imagine(
     seed: int | None = None,
     use_cache: bool = True,
     stop_on_done: bool = True,
+    constrained: bool = False,
 ) -> Imagination:
     """Imagine `n` trajectories.
 
@@ -320,6 +359,7 @@ def imagine(
     use_cache: False recomputes the whole prefix at every token (for the speed benchmark only).
     stop_on_done: False keeps imagining past a sampled done (benchmarks use it for full-length
         trajectories).
+    constrained: sample under the game's rules (world/constraints.py), for plans shown to people.
     """
     if (actions is None) == (policy is None):
         raise ValueError("give either an action sequence or a policy")
@@ -331,7 +371,7 @@ def imagine(
             raise ShapeError(f"actions must be [{n}, >= {max_steps}], got {actions.shape}")
         if ((actions < 0) | (actions >= NUM_ACTIONS)).any():
             raise ValueError(f"actions must be in 0..{NUM_ACTIONS - 1}")
-    rollout = Rollout(model, manual, first_obs, n, max_steps, temperature, seed, use_cache, stop_on_done)
+    rollout = Rollout(model, manual, first_obs, n, max_steps, temperature, seed, use_cache, stop_on_done, constrained)
     while not rollout.finished:
         active, t = rollout.active, rollout.t + 1
         if policy is not None:

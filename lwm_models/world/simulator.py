@@ -210,6 +210,7 @@ class Simulator:
             max_steps,
             float(request.get("temperature", 1.0)),
             int(request.get("seed", 0)),
+            bool(request.get("constrained", False)),
             info={"manual": manual, "manual_version": version},
         )
 
@@ -260,6 +261,7 @@ class Simulator:
             int(request.get("max_steps", 32)),
             float(request.get("temperature", 1.0)),
             int(request.get("seed", 0)),
+            constrained=bool(request.get("constrained", False)),
         )
         sid = f"s{next(self._ids)}"
         self.sessions[sid] = Session(rollout, version)

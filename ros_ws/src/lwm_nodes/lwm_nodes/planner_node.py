@@ -54,7 +54,11 @@ class PlannerNode(JsonNode):
             max_rereviews=int(p("max_rereviews", ReviewConfig.max_rereviews).value),
         )
         imagine = self.create_client(Json, "/lwm/imagine")
-        self.imaginer = ServiceImaginer(json_caller(self, imagine, "imagine_response", call_timeout))
+        # Plans, futures and learning rounds imagined under the game's rules, or the model's raw samples.
+        constrained = bool(p("constrained", False).value)
+        self.imaginer = ServiceImaginer(
+            json_caller(self, imagine, "imagine_response", call_timeout), constrained=constrained
+        )
         ports = Ports(
             publish_plan=self.json_publisher("/planner/plan", "plan", LATCHED),
             publish_label_request=self.json_publisher("/planner/label_request", "label_request", LATCHED),
