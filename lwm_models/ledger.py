@@ -1,7 +1,8 @@
 """The review ledger: every plan, feedback, manual version and execution report, in SQLite.
 
 Each record is one committed transaction written as it happens (WAL mode), so a node killed at
-any moment loses nothing it had acknowledged. `lwm ledger show` prints a review's history.
+any moment loses nothing it had acknowledged. `lwm ledger show` prints a review's history; the
+review page reads it too, read-only (the planner is its one writer).
 """
 
 from __future__ import annotations
@@ -11,14 +12,23 @@ import os
 import sqlite3
 import time
 from pathlib import Path
+from urllib.parse import quote
 
 DEFAULT_LEDGER = Path(os.environ.get("LWM_LEDGER", "logs/ledger.sqlite"))
 KINDS = ("plan", "feedback", "manual", "report", "label_request", "labels", "policy")
 
 
 class Ledger:
-    def __init__(self, path: str | Path = DEFAULT_LEDGER) -> None:
+    def __init__(self, path: str | Path = DEFAULT_LEDGER, read_only: bool = False) -> None:
+        """read_only: for readers beside the writing planner (the review page); SQLite itself
+        refuses their writes, and a missing ledger raises FileNotFoundError instead of being made."""
         self.path = Path(path)
+        if read_only:
+            if not self.path.is_file():
+                raise FileNotFoundError(f"no ledger at {self.path}")
+            uri = f"file:{quote(str(self.path.resolve()))}?mode=ro"
+            self.db = sqlite3.connect(uri, uri=True, timeout=30, isolation_level=None, check_same_thread=False)
+            return
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self.db = sqlite3.connect(self.path, timeout=30, isolation_level=None, check_same_thread=False)
         self.db.execute("PRAGMA journal_mode=WAL")
@@ -50,14 +60,42 @@ class Ledger:
     def reviews(self) -> list[str]:
         return [r for (r,) in self.db.execute("SELECT review_id FROM records GROUP BY review_id ORDER BY MIN(id)")]
 
+    def summaries(self) -> list[dict]:
+        """One entry per review, in the order they began: when it began and was last written, how
+        many records of each kind, and its last report (None while it has none)."""
+        out: dict[str, dict] = {}
+        rows = self.db.execute(
+            "SELECT review_id, kind, COUNT(*), MIN(time), MAX(time) FROM records GROUP BY review_id, kind "
+            "ORDER BY MIN(id)"
+        )
+        for review, kind, n, first, last in rows:
+            s = out.setdefault(review, {"review_id": review, "first": first, "last": last, "counts": {}})
+            s["report"] = None
+            s["first"], s["last"] = min(s["first"], first), max(s["last"], last)
+            s["counts"][kind] = n
+        reports = self.db.execute(
+            "SELECT review_id, payload FROM records WHERE id IN "
+            "(SELECT MAX(id) FROM records WHERE kind = 'report' GROUP BY review_id)"
+        )
+        for review, payload in reports:
+            p = json.loads(payload)
+            keep = ("plan_id", "outcome", "real_return", "imagined_return", "steps")
+            out[review]["report"] = {k: p.get(k) for k in keep}
+        return list(out.values())
+
     def close(self) -> None:
         self.db.close()
 
 
 def describe(record: dict) -> str:
     """One line per record, for `lwm ledger show`."""
-    p = record["payload"]
     when = time.strftime("%H:%M:%S", time.localtime(record["time"]))
+    return f"{when} #{record['id']} {headline(record)}"
+
+
+def headline(record: dict) -> str:
+    """What a record says, in a line (the review page lists these)."""
+    p = record["payload"]
     if record["kind"] == "plan":
         what = (
             f"plan {p['plan_id']} (manual v{p['manual_version']}): {len(p['actions'])} steps, "
@@ -67,7 +105,8 @@ def describe(record: dict) -> str:
         detail = {"corrections": lambda: f" {p['corrections']}", "manual": lambda: f" {p['manual']}"}.get(
             p["decision"], lambda: ""
         )()
-        what = f"feedback on plan {p['plan_id']}: {p['decision']}{detail}"
+        by = f" by {p['reviewer']}" if p.get("reviewer") else ""
+        what = f"feedback on plan {p['plan_id']}: {p['decision']}{detail}{by}"
     elif record["kind"] == "manual":
         what = f"manual v{p['manual_version']} from {p.get('source', '?')}: {p['descriptions']}"
     elif record["kind"] == "label_request":
@@ -81,4 +120,4 @@ def describe(record: dict) -> str:
             f"executed plan {p['plan_id']}: real return {p['real_return']:+.2f} "
             f"(imagined {p['imagined_return']:+.2f}), {p['steps']} steps, {p['outcome']}"
         )
-    return f"{when} #{record['id']} {what}"
+    return what

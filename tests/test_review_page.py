@@ -1,6 +1,9 @@
 """The review page in a real browser (headless Chromium driven by Selenium) against the real
 system: the plan appears drawn, a description edited on the page becomes a new manual version
-and a plan imagined under it, an approval from the page is executed and its report appears.
+and a plan imagined under it, online imitation asks for labels and the person labels states of
+both rounds with keys and buttons (a refused answer shows the node's reason and keeps the labels),
+the labels reach the planner (its ledger), an approval from the page is executed, its report
+appears and the history panel lists the review with its report.
 Screenshots go to the test's directory (and to LWM_SCREENSHOTS, for the README's pictures)."""
 
 from __future__ import annotations
@@ -18,6 +21,8 @@ from pathlib import Path
 
 import pytest
 
+from lwm_models.ledger import Ledger
+
 pytest.importorskip("rclpy")
 CHROMIUM, DRIVER = shutil.which("chromium"), shutil.which("chromedriver")
 if not (CHROMIUM and DRIVER):
@@ -27,6 +32,8 @@ if not (CHROMIUM and DRIVER):
     )
 webdriver = pytest.importorskip("selenium.webdriver")
 from selenium.webdriver.chrome.service import Service  # noqa: E402
+from selenium.webdriver.common.action_chains import ActionChains  # noqa: E402
+from selenium.webdriver.common.keys import Keys  # noqa: E402
 from selenium.webdriver.support.ui import WebDriverWait  # noqa: E402
 
 
@@ -86,7 +93,10 @@ def painted_cells(driver, canvas: str) -> int:
     )
 
 
-def shoot(driver, tmp_path: Path, name: str) -> None:
+def shoot(driver, tmp_path: Path, name: str, panel: str | None = None) -> None:
+    """A screenshot of the window, scrolled to `panel` (an element id) when given."""
+    script = "const e = document.getElementById(arguments[0]); e ? e.scrollIntoView() : scrollTo(0, 0)"
+    driver.execute_script(script, panel)
     driver.save_screenshot(str(tmp_path / name))
     if os.environ.get("LWM_SCREENSHOTS"):
         shutil.copy(tmp_path / name, Path(os.environ["LWM_SCREENSHOTS"]) / name)
@@ -112,12 +122,68 @@ def test_review_in_the_browser(page_system, browser):
     assert "airplane: enemy, chaser" in legend
     shoot(browser, tmp_path, "review_page_new_manual.png")
 
+    # Online imitation (2 rounds in this system): each round's states come to the page to label.
+    imitated = title().split()[1]
+    browser.find_element("id", "imitate").click()
+    text = lambda element: browser.find_element("id", element).text  # noqa: E731
+    wait.until(lambda _: text("labels-title").startswith("label request 1 (round 1/2"))
+    shown = int(text("labels-title").split(": ")[1].split()[0])
+    assert shown >= 16 and painted_cells(browser, "label-board") >= 2  # 16 episodes, each state drawn
+    keys = ActionChains(browser)
+    keys.send_keys(Keys.ARROW_RIGHT, Keys.ARROW_DOWN, " ").perform()  # label three states, one after another
+    browser.find_element("css selector", "#label-actions button[data-action='2']").click()
+    keys.send_keys("n", Keys.ARROW_UP).perform()  # skip one state, label the next
+    assert text("label-count") == f"5 of {shown} states labelled"
+    assert painted_cells(browser, "label-before") >= 2  # the state a step earlier in its episode
+    shoot(browser, tmp_path, "review_page_labels.png", "labels")
+
+    # A refused answer (here: for a request the page no longer shows) says why and keeps the labels.
+    browser.execute_script("request.request_id += 100")
+    browser.find_element("id", "send-labels").click()
+    wait.until(lambda _: "the request is 1" in text("label-message"))
+    assert text("label-count") == f"5 of {shown} states labelled"
+    browser.execute_script("request.request_id -= 100")
+    browser.find_element("id", "send-labels").click()
+    wait.until(lambda _: text("labels-title").startswith("label request 2 (round 2/2"))
+    assert text("label-count").startswith("0 of ")
+    keys.send_keys(Keys.ARROW_LEFT, Keys.ARROW_LEFT).perform()
+    browser.find_element("id", "send-labels").click()
+    wait.until(lambda _: "(imitation)" in title())
+    assert not browser.find_element("id", "labels").is_displayed()
+    ledger = Ledger(tmp_path / "ledger.sqlite", read_only=True)
+    taken = [r["payload"] for r in ledger.history() if r["kind"] == "labels"]
+    ledger.close()
+    assert taken == [{"request_id": 1, "labels": 5}, {"request_id": 2, "labels": 2}]  # what the planner took
+
     browser.find_element("id", "approve").click()
     wait.until(lambda _: browser.find_element("id", "report").is_displayed())
     report = browser.find_element("id", "report-title").text
     assert report.startswith("report, plan ") and "real return" in report
     assert painted_cells(browser, "real") >= 2 and painted_cells(browser, "planned") >= 2
     shoot(browser, tmp_path, "review_page_report.png")
+
+    # The history (the ledger, read by the page's server) lists the review with its report.
+    review_id = title().split(" of review ")[1].split()[0]
+    wait.until(lambda _: "real return" in text("reviews"))
+    row = browser.find_element("css selector", "#reviews tr.review")
+    assert row.text.startswith(review_id) and report.split(": ")[1].split(",")[0] in row.text  # the outcome
+    records = text("records")
+    for line in ("manual v2 from human", f"plan {imitated}: imitate by terminal", "labels for request 1: 5 state(s)"):
+        assert line in records
+    assert "executed plan" in records.splitlines()[-1]
+    browser.find_elements("css selector", "#records div.drawn")[0].click()  # the first plan, drawn again
+    assert painted_cells(browser, "history-board") >= 3
+    shoot(browser, tmp_path, "review_page_history.png", "history")
+
+    # The page's labels go through the same JSON Schema as the topic's.
+    bad = urllib.request.Request(
+        url + "api/labels",
+        data=json.dumps({"review_id": review_id, "request_id": 2, "states": [0], "actions": [7]}).encode(),
+        headers={"Content-Type": "application/json"},
+    )
+    with pytest.raises(urllib.error.HTTPError) as refused:
+        urllib.request.urlopen(bad, timeout=10)
+    assert refused.value.code == 400 and "labels: actions/0" in json.load(refused.value)["error"]
 
     # Another origin cannot answer through the reviewer's browser.
     request = urllib.request.Request(

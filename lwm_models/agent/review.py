@@ -45,6 +45,19 @@ LABELS = "labels.safetensors"  # beside a review's policy snapshot: the states l
 MAX_EARLY = 100  # feedback and labels kept while no review is open (a restarted planner)
 
 
+def check_labels(request: dict, states: list[int], actions: list[int]) -> None:
+    """FeedbackError unless `states` and `actions` label states of `request`, each once. The planner
+    checks what it takes; a human node checks the same before it signs, so a person hears why at once."""
+    if len(states) != len(actions):
+        raise FeedbackError(f"{len(states)} states but {len(actions)} actions: give one action per state")
+    shown = len(request["observations"])
+    bad = [s for s in states if not 0 <= s < shown]
+    if bad:
+        raise FeedbackError(f"state {bad[0]} was never shown (request {request['request_id']} has {shown} states)")
+    if len(set(states)) != len(states):
+        raise FeedbackError("a state is labelled twice")
+
+
 @dataclass
 class ReviewConfig:
     """How the planner reviews. Defaults reproduce Table 3's online-imitation recipe, except that
@@ -218,14 +231,7 @@ class ReviewLoop:
                     return  # answered or expired earlier (delivered again after a restart)
                 raise FeedbackError(f"no label request {msg['request_id']} (the last is {r.requests})")
             states, actions = msg["states"], msg["actions"]
-            if len(states) != len(actions):
-                raise FeedbackError(f"{len(states)} states but {len(actions)} actions: give one action per state")
-            shown = len(req["observations"])
-            bad = [s for s in states if s >= shown]
-            if bad:
-                raise FeedbackError(f"state {bad[0]} was never shown (request {req['request_id']} has {shown} states)")
-            if len(set(states)) != len(states):
-                raise FeedbackError("a state is labelled twice")
+            check_labels(req, states, actions)
             self.ledger.record(r.review_id, "labels", {"request_id": req["request_id"], "labels": len(states)})
             r.labels = (np.asarray(states, dtype=np.int64), np.asarray(actions, dtype=np.int64))
             r.request = None
@@ -623,4 +629,4 @@ class ReviewLoop:
         self._submit(lambda: self._take(r, msg, record))
 
 
-__all__ = ["Execution", "Ports", "Review", "ReviewConfig", "ReviewLoop"]
+__all__ = ["Execution", "Ports", "Review", "ReviewConfig", "ReviewLoop", "check_labels"]

@@ -2,6 +2,8 @@
 draw (the board rules of messenger/render.py, so the page and the PNGs agree), and the manual as
 a legend of identity, movement and role as the project's parser reads each description. The page
 only draws; a description the parser cannot read shows as unknown, as it is to the reader too.
+Label requests come with their states' frames and where each state's trajectory was a step
+before; the ledger's records with a line of text each (as `lwm ledger show` prints them).
 """
 
 from __future__ import annotations
@@ -10,6 +12,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from ..ledger import headline
 from ..messenger.render import board, identity_style
 from ..text.parser import parse_description
 
@@ -50,4 +53,38 @@ def report_view(report: dict) -> dict:
     }
 
 
-__all__ = ["frames", "legend", "plan_view", "report_view"]
+def label_request_view(request: dict) -> dict:
+    """A label request with its states' frames, `before[k]`: the state of the same imagined
+    trajectory one step earlier (-1 at its start: a person judges movement from two frames), and
+    `order`: the states trajectory by trajectory, step by step, the order a person follows an
+    episode in (the request lists them step by step across trajectories)."""
+    steps, trajectories = request["steps"], request["trajectories"]
+    at = {(traj, step): k for k, (traj, step) in enumerate(zip(trajectories, steps, strict=True))}
+    return {
+        **request,
+        "frames": frames(request["observations"]),
+        "before": [at.get((traj, step - 1), -1) for traj, step in zip(trajectories, steps, strict=True)],
+        "order": sorted(range(len(steps)), key=lambda k: (trajectories[k], steps[k])),
+    }
+
+
+def history_view(records: Sequence[dict]) -> list[dict]:
+    """A review's ledger records as the page lists them: kind, time, one line of text, and the
+    frames of plans (imagined) and reports (real), which the page can step through; the rest of
+    a payload (signatures, futures) stays in the ledger."""
+    out = []
+    for record in records:
+        drawn = record["kind"] in ("plan", "report")
+        out.append(
+            {
+                "id": record["id"],
+                "kind": record["kind"],
+                "time": record["time"],
+                "text": headline(record),
+                **({"frames": frames(record["payload"].get("observations") or [])} if drawn else {}),
+            }
+        )
+    return out
+
+
+__all__ = ["frames", "history_view", "label_request_view", "legend", "plan_view", "report_view"]

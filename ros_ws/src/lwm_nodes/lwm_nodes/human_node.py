@@ -6,7 +6,8 @@ futures, then
     r                 reject (the planner imagines again)
     c STEP:ACTION ... corrections, e.g. "c 1:3 2:3" (actions 0 up, 1 down, 2 left, 3 right, 4 stay)
     i [ROUNDS]        online imitation: the planner imagines rounds of episodes and asks for labels
-    l STATE:ACTION ...  label states of the current label request ("l -" sends none)
+    l STATE:ACTION ...  label states of the current label request ("l -" sends none); one answer
+                      per request, before the planner stops waiting (the request's timeout)
     x                 abort: execute nothing
     m                 a new manual, three descriptions, one per line (published on /feedback/manual)
 Scripted (parameter scripted:=true): the paper's simulated human, the expert reading the true
@@ -17,7 +18,10 @@ feedback: the true manual in other words, published on /feedback/manual (texts:=
 files to draw them from; default: the project's generator).
 With page_port:=PORT (`./run_nodes.sh --page PORT`) it serves the review page in the browser
 instead of reading the terminal (lwm_nodes/review_page.py, on page_host, default localhost): the
-plan and its futures drawn, the manual's legend, the answers and the execution report.
+plan and its futures drawn, the manual's legend, the answers, the label requests' states to label,
+the execution report, and the review history read (read-only) from the planner's ledger at
+`ledger` (default logs/ledger.sqlite; the launcher passes its --ledger). Page answers take the
+terminal's code paths: the same checks, signature and schema.
 Everything it publishes is signed as reviewer `reviewer` (default: scripted or terminal) with that
 reviewer's key from `keys_file` (lwm_nodes.trust); the planner and the simulator take nothing else.
 """
@@ -28,14 +32,18 @@ import queue
 import sys
 import threading
 import time
+from pathlib import Path
 
 import numpy as np
 from lwm_interfaces.srv import Json
 
+from lwm_models import messages
 from lwm_models.agent.imaginer import ServiceImaginer
-from lwm_models.agent.review_view import plan_view, report_view
+from lwm_models.agent.review import check_labels
+from lwm_models.agent.review_view import history_view, label_request_view, plan_view, report_view
 from lwm_models.agent.reviewer import ScriptedReviewer
 from lwm_models.data.splits import load_split
+from lwm_models.ledger import Ledger
 from lwm_models.messenger.constants import ACTION_NAMES
 from lwm_models.messenger.render import render_ascii
 from lwm_nodes.common import FEEDBACK, LATCHED, JsonNode, json_caller, run
@@ -64,6 +72,10 @@ class HumanNode(JsonNode):
         self.reviewer: ScriptedReviewer | None = None
         self.plan: dict | None = None
         self.request: dict | None = None
+        self.request_deadline = float("inf")  # monotonic; when the planner stops waiting for its labels
+        self.answered: set[tuple[str, int]] = set()  # (review_id, request_id): the planner takes one answer
+        self.labels_lock = threading.Lock()  # the page answers from its own threads (a double click, too)
+        self.ledger_path = Path(p("ledger", "logs/ledger.sqlite").value)
         signer = Signer(self, "scripted" if self.scripted else "terminal")
         self.publish_feedback = signer.publisher(
             self.json_publisher("/review/feedback", "review_feedback", FEEDBACK), "review_feedback"
@@ -81,7 +93,14 @@ class HumanNode(JsonNode):
         self.page = None
         port = int(p("page_port", 0).value)
         if port and not self.scripted:
-            self.page = ReviewPage(p("page_host", "127.0.0.1").value, port, self.on_page_feedback, self.on_page_manual)
+            self.page = ReviewPage(
+                p("page_host", "127.0.0.1").value,
+                port,
+                on_feedback=self.on_page_feedback,
+                on_manual=self.on_page_manual,
+                on_labels=self.on_page_labels,
+                history=self.page_history,
+            )
             self.json_subscription("/lwm/status", "status", lambda s: self.page.push("status", s), LATCHED)
             print(f"PAGE review page at {self.page.url}", flush=True)
         # The scripted reviewer may imagine through /lwm/imagine (filtered BC), which must not block
@@ -156,15 +175,21 @@ class HumanNode(JsonNode):
             and request["request_id"] <= self.request["request_id"]
         ):
             return
-        self.request = request
+        with self.labels_lock:
+            self.request = request
+            self.request_deadline = time.monotonic() + request.get("timeout", float("inf"))
         n = len(request["observations"])
-        if self.scripted and self.reviewer is not None:
+        if self.page is not None:
+            # The page counts down to the deadline in wall time (the browser's clock is this host's).
+            expires = time.time() + request["timeout"] if "timeout" in request else None
+            self.page.push("label_request", {**label_request_view(request), "expires_at": expires})
+        elif self.scripted and self.reviewer is not None:
             self.publish_labels(self.reviewer.label(request))
             if not self.quiet or request["round"] == request["rounds"]:
                 print(
                     f"scripted human: labelled {n} states of round {request['round']}/{request['rounds']}", flush=True
                 )
-        elif not self.scripted:
+        else:
             print(
                 f"label request {request['request_id']} (round {request['round']}/{request['rounds']}): {n} imagined "
                 f"states; label with l STATE:ACTION ... (states 0..{n - 1}), or l - for none",
@@ -176,6 +201,57 @@ class HumanNode(JsonNode):
         allowed = ("review_id", "plan_id", "decision", "corrections", "rounds")
         self.publish_feedback({k: v for k, v in body.items() if k in allowed})
         self.get_logger().info(f"page: {body.get('decision')} on plan {body.get('plan_id')}")
+
+    def send_labels(self, states: list[int], actions: list[int], request_id: int | None = None) -> None:
+        """Labels from a person (terminal or page) for the current label request; request_id, when
+        given, is the request they looked at. Refused with the reason, nothing published, when
+        they do not fit it: labels for another request would teach the wrong states."""
+        with self.labels_lock:
+            self._send_labels(states, actions, request_id)
+
+    def _send_labels(self, states: list[int], actions: list[int], request_id: int | None) -> None:
+        request = self.request
+        if request is None:
+            raise ValueError("there is no label request")
+        if request_id is not None and request_id != request["request_id"]:
+            raise ValueError(f"these labels are for request {request_id}, but the request is {request['request_id']}")
+        key = (request["review_id"], request["request_id"])
+        if key in self.answered:
+            raise ValueError(f"request {request['request_id']} is answered already (the planner takes one answer)")
+        if time.monotonic() > self.request_deadline:
+            waits = request["timeout"]
+            raise ValueError(f"request {request['request_id']} has expired: the planner waits {waits:.0f} s for labels")
+        check_labels(request, states, actions)
+        ids = {"review_id": request["review_id"], "request_id": request["request_id"]}
+        self.publish_labels({**ids, "states": states, "actions": actions})
+        self.answered.add(key)
+        if self.page is not None:
+            self.page.push("label_request", None)
+
+    def on_page_labels(self, body: dict) -> None:
+        """Labels from the page: the schema first (a page's payload is as untrusted as a topic's),
+        then the terminal's path."""
+        fields = {k: body.get(k) for k in ("review_id", "request_id", "states", "actions")}
+        labels = messages.validate("labels", {"version": messages.version("labels"), **fields})
+        request = self.request
+        if request is not None and labels["review_id"] != request["review_id"]:
+            raise ValueError(f"these labels are for review {labels['review_id']!r}, not {request['review_id']!r}")
+        self.send_labels(labels["states"], labels["actions"], labels["request_id"])
+        self.get_logger().info(f"page: {len(labels['states'])} label(s) for request {labels['request_id']}")
+
+    def page_history(self, review_id: str | None) -> dict:
+        """The reviews in the ledger, or one review's records; read-only: the planner writes it."""
+        out = {"ledger": str(self.ledger_path)}
+        try:
+            ledger = Ledger(self.ledger_path, read_only=True)
+        except FileNotFoundError as exc:  # the planner has not written it yet, or runs on another host
+            return {**out, "reviews": [], "records": [], "note": str(exc)}
+        try:
+            if review_id is None:
+                return {**out, "reviews": ledger.summaries()}
+            return {**out, "review_id": review_id, "records": history_view(ledger.history(review_id))}
+        finally:
+            ledger.close()
 
     def on_page_manual(self, descriptions: list[str]) -> None:
         self.publish_manual({"descriptions": descriptions, "source": "human"})
@@ -227,17 +303,8 @@ class HumanNode(JsonNode):
             self.publish_manual({"descriptions": manual, "source": "human"})
             return
         if line.startswith("l "):
-            if self.request is None:
-                raise ValueError("there is no label request")
             pairs = [] if line[2:].strip() == "-" else [p.split(":") for p in line[2:].split()]
-            self.publish_labels(
-                {
-                    "review_id": self.request["review_id"],
-                    "request_id": self.request["request_id"],
-                    "states": [int(s) for s, _ in pairs],
-                    "actions": [int(a) for _, a in pairs],
-                }
-            )
+            self.send_labels([int(s) for s, _ in pairs], [int(a) for _, a in pairs])
             return
         if not line or self.plan is None:
             return

@@ -101,10 +101,10 @@ def default_nodes(
     trusted: str = "",
     page_port: int = 0,
 ) -> list[NodeSpec]:
-    """human: 'scripted', 'interactive', 'page' (the browser, on page_port) or 'none'. The planner
-    loads no world model: only the simulator gets the checkpoint. keys_file: the reviewers' keys;
-    trusted: the reviewers the simulator and the planner take feedback from (comma-separated;
-    empty: all in the key file)."""
+    """human: 'scripted', 'interactive', 'page' (the browser, on page_port; its history reads
+    `ledger`) or 'none'. The planner loads no world model: only the simulator gets the checkpoint.
+    keys_file: the reviewers' keys; trusted: the reviewers the simulator and the planner take
+    feedback from (comma-separated; empty: all in the key file)."""
     trust = {**({"keys_file": keys_file} if keys_file else {}), **({"trusted": trusted} if trusted else {})}
     signs = {"keys_file": keys_file} if keys_file else {}
     nodes = [
@@ -128,7 +128,8 @@ def default_nodes(
         params = {"scripted": "true", **signs, **(reviewer or {})}
         nodes.append(NodeSpec("human", "lwm_nodes.human_node", params, final=True))
     elif human == "page":
-        nodes.append(NodeSpec("human", "lwm_nodes.human_node", {**signs, "page_port": str(page_port)}))
+        page = {"page_port": str(page_port), "ledger": ledger}
+        nodes.append(NodeSpec("human", "lwm_nodes.human_node", {**signs, **page}))
     elif human == "interactive":
         nodes.append(NodeSpec("human", "lwm_nodes.human_node", {**signs}, interactive=True, final=True))
     return nodes

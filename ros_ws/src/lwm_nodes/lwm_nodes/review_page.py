@@ -2,10 +2,12 @@
 
 Standard library only (http.server): the page (web/review.html, plain JavaScript, no build step),
 a snapshot of what is under review (GET /api/state), live updates as server-sent events (GET
-/api/events: plan, report, status), and the person's answers (POST /api/feedback, /api/manual),
-which the node signs and publishes. It binds to localhost unless told otherwise. A POST must be
-JSON and, when the browser names an origin, come from this page: a web page on another origin
-cannot answer a plan through the reviewer's browser.
+/api/events: plan, label_request, report, status), the review history from the ledger (GET
+/api/history, /api/history?review=ID; the node reads the ledger read-only), and the person's
+answers (POST /api/feedback, /api/labels, /api/manual), which the node signs and publishes. It
+binds to localhost unless told otherwise. A POST must be JSON and, when the browser names an
+origin, come from this page: a web page on another origin cannot answer a plan through the
+reviewer's browser.
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ from collections.abc import Callable
 from http import HTTPStatus
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
+from urllib.parse import parse_qs, urlsplit
 
 PAGE = Path(__file__).with_name("web") / "review.html"
 HEARTBEAT_S = 10.0  # a comment line on idle event streams, so a closed tab is noticed
@@ -24,18 +27,26 @@ MAX_BODY = 1 << 20
 
 
 class ReviewPage:
+    """What the page shows and where its answers go. on_feedback, on_labels and on_manual take the
+    body of a POST and raise to refuse it (the page shows the reason); history(review_id or None)
+    answers GET /api/history."""
+
+    KINDS = ("plan", "label_request", "report", "status")
+
     def __init__(
         self,
         host: str,
         port: int,
         on_feedback: Callable[[dict], None],
         on_manual: Callable[[list[str]], None],
+        on_labels: Callable[[dict], None],
+        history: Callable[[str | None], dict],
     ) -> None:
-        self.state: dict[str, dict | None] = {"plan": None, "report": None, "status": None}
+        self._state: dict[str, dict | None] = dict.fromkeys(self.KINDS)
         self._streams: list[queue.SimpleQueue] = []
         self._lock = threading.Lock()
         self._closed = threading.Event()
-        self.on_feedback, self.on_manual = on_feedback, on_manual
+        self.on_feedback, self.on_manual, self.on_labels, self.history = on_feedback, on_manual, on_labels, history
         self.server = ThreadingHTTPServer((host, port), _handler(self))
         self.server.daemon_threads = True
         threading.Thread(target=self.server.serve_forever, name="review-page", daemon=True).start()
@@ -45,12 +56,36 @@ class ReviewPage:
         host, port = self.server.server_address[:2]
         return f"http://{host}:{port}/"
 
-    def push(self, kind: str, payload: dict) -> None:
-        """A new plan, report or status: kept for new pages, sent to open ones."""
+    @property
+    def closed(self) -> bool:
+        return self._closed.is_set()
+
+    def push(self, kind: str, payload: dict | None) -> None:
+        """A new plan, label request, report or status: kept for new pages, sent to open ones.
+        None withdraws what was shown (an answered label request)."""
         with self._lock:
-            self.state[kind] = payload
+            self._state[kind] = payload
             for stream in self._streams:
                 stream.put((kind, payload))
+
+    def snapshot(self) -> dict[str, dict | None]:
+        with self._lock:
+            return dict(self._state)
+
+    def subscribe(self) -> queue.SimpleQueue:
+        """A queue of (kind, payload) for one open page, starting with what is shown now; None in
+        it means the server is closing. Give it back with unsubscribe."""
+        stream: queue.SimpleQueue = queue.SimpleQueue()
+        with self._lock:
+            for kind, payload in self._state.items():
+                if payload is not None:
+                    stream.put((kind, payload))
+            self._streams.append(stream)
+        return stream
+
+    def unsubscribe(self, stream: queue.SimpleQueue) -> None:
+        with self._lock:
+            self._streams.remove(stream)
 
     def close(self) -> None:
         self._closed.set()
@@ -59,19 +94,6 @@ class ReviewPage:
                 stream.put(None)
         self.server.shutdown()
         self.server.server_close()
-
-    def _stream(self) -> queue.SimpleQueue:
-        stream: queue.SimpleQueue = queue.SimpleQueue()
-        with self._lock:
-            for kind, payload in self.state.items():  # what is under review now, first
-                if payload is not None:
-                    stream.put((kind, payload))
-            self._streams.append(stream)
-        return stream
-
-    def _unstream(self, stream: queue.SimpleQueue) -> None:
-        with self._lock:
-            self._streams.remove(stream)
 
 
 def _handler(page: ReviewPage) -> type[BaseHTTPRequestHandler]:
@@ -82,19 +104,29 @@ def _handler(page: ReviewPage) -> type[BaseHTTPRequestHandler]:
             pass
 
         def do_GET(self) -> None:  # noqa: N802 (http.server's naming)
-            if self.path == "/":
+            url = urlsplit(self.path)
+            if url.path == "/":
                 self._send(HTTPStatus.OK, PAGE.read_bytes(), "text/html; charset=utf-8")
-            elif self.path == "/api/state":
-                with page._lock:
-                    body = json.dumps(page.state)
-                self._send(HTTPStatus.OK, body.encode(), "application/json")
-            elif self.path == "/api/events":
+            elif url.path == "/api/state":
+                self._send(HTTPStatus.OK, json.dumps(page.snapshot()).encode(), "application/json")
+            elif url.path == "/api/events":
                 self._events()
+            elif url.path == "/api/history":
+                review = parse_qs(url.query).get("review", [None])[0]
+                try:
+                    body = page.history(review)
+                except Exception as exc:  # a ledger being written or damaged: say so, keep serving
+                    return self._answer(HTTPStatus.INTERNAL_SERVER_ERROR, f"{type(exc).__name__}: {exc}")
+                self._send(HTTPStatus.OK, json.dumps(body).encode(), "application/json")
             else:
-                self._send(HTTPStatus.NOT_FOUND, b'{"ok": false, "error": "not found"}', "application/json")
+                self._answer(HTTPStatus.NOT_FOUND, "not found")
 
         def do_POST(self) -> None:  # noqa: N802
-            routes = {"/api/feedback": page.on_feedback, "/api/manual": lambda b: page.on_manual(b["descriptions"])}
+            routes = {
+                "/api/feedback": page.on_feedback,
+                "/api/labels": page.on_labels,
+                "/api/manual": lambda b: page.on_manual(b["descriptions"]),
+            }
             handle = routes.get(self.path)
             origin = self.headers.get("Origin")
             host = self.headers.get("Host", "")
@@ -133,9 +165,9 @@ def _handler(page: ReviewPage) -> type[BaseHTTPRequestHandler]:
             self.send_header("Content-Type", "text/event-stream")
             self.send_header("Cache-Control", "no-store")
             self.end_headers()
-            stream = page._stream()
+            stream = page.subscribe()
             try:
-                while not page._closed.is_set():
+                while not page.closed:
                     try:
                         item = stream.get(timeout=HEARTBEAT_S)
                     except queue.Empty:
@@ -150,7 +182,7 @@ def _handler(page: ReviewPage) -> type[BaseHTTPRequestHandler]:
             except OSError:  # the tab was closed
                 pass
             finally:
-                page._unstream(stream)
+                page.unsubscribe(stream)
                 self.close_connection = True
 
     return Handler
