@@ -7,6 +7,7 @@ case is then checked, and reported, on its own.
 
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
@@ -114,6 +115,11 @@ CASES: list[tuple[str, list[str], str]] = [
         ["agent", "table3", "--data", "{tmp}/empty", "--from-records", "{tmp}/wrongshape.json"],
         "wrongshape.json:1: not a Table 3 record",
     ),
+    (
+        "table3 resumed under another budget",
+        ["agent", "table3", "--data", "{tmp}/empty", "--records", "{tmp}/constrained.jsonl", "--iterations", "3"],
+        "holds records of another budget (constrained, iterations); use another --records",
+    ),
     # ledger
     ("ledger missing", ["ledger", "show", "--path", "{tmp}/missing.sqlite"], "no ledger at"),
     ("ledger not a database", ["ledger", "show", "--path", "{tmp}/malformed.json"], "is not a ledger"),
@@ -133,6 +139,9 @@ def results(tmp_path_factory: pytest.TempPathFactory) -> dict[str, subprocess.Co
     (tmp / "badconfig" / "config.json").write_text("{not json")
     (tmp / "malformed.json").write_text("{not json\n" + "x" * 1000)
     (tmp / "wrongshape.json").write_text("[1, 2, 3]\n")
+    record = {"setting": "online_il", "model": "emma", "split": "newall-test", "game": 0, "return": 1.0}
+    record.update(learn_seconds=1.0, budget={"constrained": True})
+    (tmp / "constrained.jsonl").write_text(json.dumps(record) + "\n")
     Ledger(tmp / "ledger.sqlite").record("r1", "plan", {"plan_id": "p1"})
 
     def run(argv: list[str]) -> subprocess.CompletedProcess:

@@ -186,6 +186,10 @@ class Budget:
             "the review loop's default)"
         },
     )
+    constrained: bool = field(
+        default=False,
+        metadata={"help": "imagine under the game's rules (decoding constraints), not the world model's raw samples"},
+    )
 
 
 def start_observations(game: GameSpec, seed: int = 0) -> np.ndarray:
@@ -383,7 +387,7 @@ def online_imitation_with(
 
     return online_imitation(
         policy,
-        LocalImaginer(world, world_manual),
+        LocalImaginer(world, world_manual, constrained=budget.constrained),
         policy_manual,
         expert_rounds(labeller, max_steps),
         first_obs,

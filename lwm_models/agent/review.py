@@ -385,6 +385,7 @@ class ReviewLoop:
             "review_id": r.review_id,
             "manual": list(r.agent.manual),
             "reason": reason,
+            "constrained": bool(getattr(self.imaginer, "constrained", False)),
             "learning": {**r.learned, "labelled": len(r.agent.labelled)},
             **plan.to_json(),
         }

@@ -46,7 +46,15 @@ def filtered_behaviour_cloning(
     online imitation takes). Returns the mean imagined return of the kept plans."""
     k = budget.plans_per_start
     first = np.repeat(np.asarray(starts, dtype=np.uint8).reshape(-1, 4, 3), k, axis=0)
-    im = imagine(world, world_manual, first, n=len(first), policy=expert_policy(game, seed), seed=seed)
+    im = imagine(
+        world,
+        world_manual,
+        first,
+        n=len(first),
+        policy=expert_policy(game, seed),
+        seed=seed,
+        constrained=budget.constrained,
+    )
     per_start = max(1, int(round(k * budget.keep)))
     # Ties (common: most plans imagine no reward) go to the shorter plan, then the first drawn.
     order = np.lexsort((np.arange(len(first)), im.lengths, -im.returns, np.arange(len(first)) // k))

@@ -183,9 +183,16 @@ def run_table3(args: argparse.Namespace) -> int:
     )
     encoder = FrozenTextEncoder()
     budget = _budget(args)
-    done = {
-        (r["setting"], r["model"], r["split"], r["game"]) for r in _load_records([args.records] if args.records else [])
-    }
+    earlier = _load_records([args.records] if args.records and args.records.is_file() else [])
+    defaults = type(budget)().__dict__
+    for r in earlier:  # resuming must not mix figures learnt under another budget into one table
+        theirs = {k: r.get("budget", {}).get(k, v) for k, v in defaults.items()}
+        if theirs != budget.__dict__:
+            changed = sorted(k for k in defaults if theirs[k] != budget.__dict__[k])
+            raise LwmError(
+                f"{args.records} holds records of another budget ({', '.join(changed)}); use another --records"
+            )
+    done = {(r["setting"], r["model"], r["split"], r["game"]) for r in earlier}
     began, began_cpu = time.perf_counter(), time.process_time()
     todo = []
     for split in args.splits:

@@ -253,6 +253,12 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--futures", type=int, default=None, help="sampled futures shown with each plan (default 8)")
     parser.add_argument(
+        "--constrained",
+        action=argparse.BooleanOptionalAction,
+        default=False,
+        help="the planner imagines under the game's rules (decoding constraints), not the model's raw samples",
+    )
+    parser.add_argument(
         "--teach",
         choices=["online_il", "filtered_bc", "corrections"],
         default="online_il",
@@ -309,6 +315,7 @@ def main(argv: list[str] | None = None) -> int:
     else:
         human = "interactive"
     planner = {k: str(v) for k, v in (("iterations", args.iterations), ("futures", args.futures)) if v is not None}
+    planner["constrained"] = "true" if args.constrained else "false"
     reviewer = {"teach": args.teach, "quiet": "false" if args.show_frames else "true", "episodes": str(args.episodes)}
     if args.language:
         reviewer.update({"language": "true", **({"texts": ",".join(args.texts)} if args.texts else {})})
