@@ -62,7 +62,7 @@ def page_system(tmp_path):
         if "nodes ready" in line or proc.poll() is not None:
             break
     assert url == f"http://127.0.0.1:{port}/", "the launcher printed no page address"
-    yield url, tmp_path
+    yield url, tmp_path, proc
     proc.send_signal(signal.SIGINT)
     out, _ = proc.communicate(timeout=30)
     assert proc.returncode == 0, out
@@ -103,7 +103,7 @@ def shoot(driver, tmp_path: Path, name: str, panel: str | None = None) -> None:
 
 
 def test_review_in_the_browser(page_system, browser):
-    url, tmp_path = page_system
+    url, tmp_path, _ = page_system
     browser.get(url)
     wait = WebDriverWait(browser, 120, poll_frequency=0.3)
     title = lambda: browser.find_element("id", "plan-title").text  # noqa: E731
@@ -194,3 +194,107 @@ def test_review_in_the_browser(page_system, browser):
     with pytest.raises(urllib.error.HTTPError) as refused:
         urllib.request.urlopen(request, timeout=10)
     assert refused.value.code == 403
+
+
+def node_pid(launcher: subprocess.Popen, module: str) -> int | None:
+    """The pid of one of this system's nodes, a child of its launcher (other systems may be
+    running); None while the launcher is restarting it."""
+    found = subprocess.run(["pgrep", "-P", str(launcher.pid), "-f", module], capture_output=True, text=True)
+    pids = [int(pid) for pid in found.stdout.split()]
+    assert len(pids) <= 1, f"{module}: {pids}"
+    return pids[0] if pids else None
+
+
+def test_the_page_survives_node_restarts(page_system, browser):
+    """Nodes killed (SIGKILL) mid-review and restarted by the launcher: the page says it is
+    reconnecting and comes back by itself to what is under review (no reload, nothing shown twice,
+    the person's typing and labels kept); what the person does next still reaches the planner; a
+    label request answered before a restart does not come back; an approval sent while the planner
+    is down is executed by the restarted planner."""
+    url, tmp_path, launcher = page_system
+    browser.get(url)
+    wait = WebDriverWait(browser, 120, poll_frequency=0.2)
+    text = lambda element: browser.find_element("id", element).text  # noqa: E731
+    boxes = lambda: {box: browser.find_element("id", box).get_attribute("value") for box in typed}  # noqa: E731
+    wait.until(lambda _: text("plan-title").startswith("plan 1 ") and text("status").startswith("live ·"))
+    # Every text the status line shows (a restart is over before a poll might see "reconnecting"),
+    # every event the page's stream delivers, and a mark that a reload would lose.
+    browser.execute_script(
+        """window.sameDocument = true; window.statuses = []; window.received = [];
+        const status = document.getElementById("status");
+        new MutationObserver(() => statuses.push(status.textContent))
+          .observe(status, {childList: true, characterData: true, subtree: true});
+        for (const kind of ["plan", "label_request", "report", "status"])
+          events.addEventListener(kind, () => received.push(kind));"""
+    )
+    received = lambda: browser.execute_script("return received")  # noqa: E731
+
+    def restart(module: str) -> None:
+        browser.execute_script("statuses.length = 0; received.length = 0")
+        old = node_pid(launcher, module)
+        os.kill(old, signal.SIGKILL)
+        wait.until(lambda _: node_pid(launcher, module) not in (None, old))
+
+    def reconnected() -> None:
+        wait.until(lambda _: "reconnecting…" in browser.execute_script("return statuses"))
+        wait.until(lambda _: text("status").startswith("live ·"))  # the server's status came again
+        assert browser.execute_script("return window.sameDocument === true"), "the page was reloaded"
+
+    # Mid-labelling, two descriptions rewritten (the second still being edited): the human node dies.
+    browser.find_element("id", "imitate").click()
+    wait.until(lambda _: text("labels-title").startswith("label request 1 (round 1/2"))
+    shown = int(text("labels-title").split(": ")[1].split()[0])
+    ActionChains(browser).send_keys(Keys.ARROW_RIGHT, Keys.ARROW_DOWN, Keys.ARROW_RIGHT).perform()
+    typed = {
+        "d1": "the ball has the message and runs away from you.",
+        "d2": "the airplane is a deadly enemy that chases you.",
+    }
+    for box, words in typed.items():
+        browser.find_element("id", box).clear()
+        browser.find_element("id", box).send_keys(words)
+    title, history = text("plan-title"), text("history")
+    restart("lwm_nodes.human_node")
+    reconnected()
+    # The restarted server sent what is under review once, and the page drew it in place.
+    wait.until(lambda _: sorted(received()) == ["label_request", "plan", "status"])
+    assert text("plan-title") == title and len(browser.find_elements("css selector", "#legend div")) == 3
+    assert text("labels-title").startswith("label request 1 (round 1/2")
+    assert text("label-count") == f"3 of {shown} states labelled" and boxes() == typed
+    wait.until(lambda _: text("history") == history)  # read again from the ledger, not appended to
+
+    # The person goes on: the labels reach the planner through the restarted node.
+    browser.find_element("id", "send-labels").click()
+    wait.until(lambda _: text("labels-title").startswith("label request 2 (round 2/2"))
+    ActionChains(browser).send_keys(Keys.ARROW_LEFT, Keys.ARROW_LEFT).perform()
+    browser.find_element("id", "send-labels").click()
+    wait.until(lambda _: "(imitation)" in text("plan-title"))
+    ledger = Ledger(tmp_path / "ledger.sqlite", read_only=True)
+    taken = [r["payload"] for r in ledger.history() if r["kind"] == "labels"]
+    ledger.close()
+    assert taken == [{"request_id": 1, "labels": 3}, {"request_id": 2, "labels": 2}]
+
+    # Again: request 2, answered but still latched on its topic, must not come back.
+    title = text("plan-title")
+    restart("lwm_nodes.human_node")
+    reconnected()
+    # The node has had the latched request (it logs dropping it); the page and the server show none.
+    wait.until(lambda _: "label request 2 is over" in (tmp_path / "logs" / "human.log").read_text())
+    assert json.load(urllib.request.urlopen(url + "api/state", timeout=10))["label_request"] is None
+    wait.until(lambda _: sorted(received()) == ["plan", "status"])
+    assert text("plan-title") == title and not browser.find_element("id", "labels").is_displayed()
+    assert boxes() == typed
+    browser.find_element("id", "send-manual").click()  # what was typed before the first restart
+    wait.until(lambda _: "manual v2" in text("plan-title"))
+    assert "airplane: enemy, chaser" in text("legend")
+
+    # The planner dies while the plan is under review: the page still shows it, and an approval
+    # sent meanwhile is kept for the restarted planner, which resumes from the ledger and executes.
+    title = text("plan-title")
+    restart("lwm_nodes.planner_node")
+    assert text("plan-title") == title and text("status").startswith("live ·")
+    browser.find_element("id", "approve").click()
+    wait.until(lambda _: text("message") == "sent")
+    wait.until(lambda _: browser.find_element("id", "report").is_displayed())
+    assert text("report-title").startswith(f"report, plan {title.split()[1]}: ") and text("plan-title") == title
+    assert received() == ["report"]  # the plan the restarted planner published again is not shown twice
+    assert "resumed from the ledger" in (tmp_path / "logs" / "planner.log").read_text()

@@ -29,6 +29,7 @@ reviewer's key from `keys_file` (lwm_nodes.trust); the planner and the simulator
 from __future__ import annotations
 
 import queue
+import sqlite3
 import sys
 import threading
 import time
@@ -175,13 +176,20 @@ class HumanNode(JsonNode):
             and request["request_id"] <= self.request["request_id"]
         ):
             return
+        issued = time.time()
+        if self.page is not None:
+            issued = self.request_issued(request)
+            if issued is None:
+                self.get_logger().info(f"label request {request['request_id']} is over (in the ledger); not shown")
+                return
+        waits = request.get("timeout", float("inf"))
         with self.labels_lock:
             self.request = request
-            self.request_deadline = time.monotonic() + request.get("timeout", float("inf"))
+            self.request_deadline = time.monotonic() + (issued + waits - time.time())
         n = len(request["observations"])
         if self.page is not None:
             # The page counts down to the deadline in wall time (the browser's clock is this host's).
-            expires = time.time() + request["timeout"] if "timeout" in request else None
+            expires = issued + waits if "timeout" in request else None
             self.page.push("label_request", {**label_request_view(request), "expires_at": expires})
         elif self.scripted and self.reviewer is not None:
             self.publish_labels(self.reviewer.label(request))
@@ -195,6 +203,33 @@ class HumanNode(JsonNode):
                 f"states; label with l STATE:ACTION ... (states 0..{n - 1}), or l - for none",
                 flush=True,
             )
+
+    def request_issued(self, request: dict) -> float | None:
+        """When the planner issued this label request (wall time), or None when it waits for it no
+        more, from the planner's ledger. The request is latched: a restarted node gets the last one
+        however old, perhaps answered, and the page would ask the person to label it again for
+        nothing. Over: the ledger holds its labels, a later request, a plan or a report after it.
+        Without the ledger, or with one that does not hold this request (the planner on another
+        host; a ledger that cannot be read now), the request is taken as new: a request wrongly
+        dropped would end the person's round."""
+        try:
+            ledger = Ledger(self.ledger_path, read_only=True)
+            try:
+                history = ledger.history(request["review_id"])
+            finally:
+                ledger.close()
+        except (OSError, sqlite3.Error):
+            return time.time()
+        issued = {
+            "request_id": request["request_id"],
+            "round": request["round"],
+            "states": len(request["observations"]),
+        }
+        for i, rec in enumerate(history):
+            if rec["kind"] == "label_request" and all(rec["payload"].get(k) == v for k, v in issued.items()):
+                ends = ("labels", "label_request", "plan", "report")
+                return None if any(later["kind"] in ends for later in history[i + 1 :]) else rec["time"]
+        return time.time()
 
     def on_page_feedback(self, body: dict) -> None:
         """An answer from the page; the schema (checked before publishing) refuses a wrong one."""

@@ -2,7 +2,8 @@
 
 Standard library only (http.server): the page (web/review.html, plain JavaScript, no build step),
 a snapshot of what is under review (GET /api/state), live updates as server-sent events (GET
-/api/events: plan, label_request, report, status), the review history from the ledger (GET
+/api/events: plan, label_request, report, status; a page that connects, or reconnects after a
+node restart, gets what is shown now first), the review history from the ledger (GET
 /api/history, /api/history?review=ID; the node reads the ledger read-only), and the person's
 answers (POST /api/feedback, /api/labels, /api/manual), which the node signs and publishes. It
 binds to localhost unless told otherwise. A POST must be JSON and, when the browser names an
@@ -23,6 +24,7 @@ from urllib.parse import parse_qs, urlsplit
 
 PAGE = Path(__file__).with_name("web") / "review.html"
 HEARTBEAT_S = 10.0  # a comment line on idle event streams, so a closed tab is noticed
+RETRY_MS = 1000  # how soon a page whose stream broke (a node restart) connects again
 MAX_BODY = 1 << 20
 
 
@@ -167,6 +169,10 @@ def _handler(page: ReviewPage) -> type[BaseHTTPRequestHandler]:
             self.end_headers()
             stream = page.subscribe()
             try:
+                # A restarted node is back in seconds: the browser's default wait (3 s in Chromium)
+                # between attempts would add most of that again.
+                self.wfile.write(f"retry: {RETRY_MS}\n\n".encode())
+                self.wfile.flush()
                 while not page.closed:
                     try:
                         item = stream.get(timeout=HEARTBEAT_S)
