@@ -22,7 +22,7 @@ PAPER = {  # real return, from the paper (shared/docs/messenger-wm.md §4)
     ("filtered_bc", "oracle"): (1.17, 0.84, 0.80),
 }
 SPLITS = ("newcombo-test", "newattr-test", "newall-test")
-BUDGET_OPTIONS = ("iterations", "episodes", "grad_steps", "lr", "plans_per_start", "overlap")
+BUDGET_OPTIONS = ("iterations", "episodes", "grad_steps", "lr", "plans_per_start", "overlap", "constrained")
 RECORD_KEYS = ("setting", "model", "split", "game", "return", "learn_seconds")
 
 
@@ -89,6 +89,7 @@ def _budget(args: argparse.Namespace):
         lr=args.lr,
         plans_per_start=args.plans_per_start,
         overlap=args.overlap,
+        constrained=args.constrained,
     )
 
 
