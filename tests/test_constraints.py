@@ -160,3 +160,25 @@ def test_the_service_takes_constrained_requests(sim):
     assert counts["identity_changes"] == counts["avatar_jumps"] == counts["vanished_without_reward"] == 0
     bad = json.loads(serve_json(sim, json.dumps({**request, "constrained": "yes"}))[0])
     assert not bad["ok"] and "constrained" in bad["error"]
+
+
+def test_impossible_mass_sees_how_much_a_model_learnt_the_rules(tmp_path, sim):
+    """Teacher-forced mass on forbidden tokens: the shipped model's is a fraction of an untrained
+    copy's, and the groups add up to the whole."""
+    from lwm_models.data.dataset import generate_dataset
+    from lwm_models.text import DescriptionPools
+    from lwm_models.world.batches import SplitTokens
+    from lwm_models.world.evaluate import IMPOSSIBLE_GROUPS, impossible_mass
+    from lwm_models.world.registry import build_model
+
+    generate_dataset(tmp_path, DescriptionPools.generated(), max_games=12, train_episodes_per_game=1)
+    shipped = sim.model
+    data = SplitTokens(tmp_path, "newall-test", shipped.frozen_text_encoder(), shipped.route)
+    trained = impossible_mass(shipped, data, episodes=40)
+    torch.manual_seed(0)
+    untrained = impossible_mass(build_model("emma", shipped.config), data, episodes=40)
+    assert 0 < trained["per_step"] < 0.25 * untrained["per_step"], (trained, untrained)
+    assert untrained["per_step"] > 1.0  # most of a step's tokens break a rule when guessed
+    for m in (trained, untrained):
+        assert sum(m[name] for name in IMPOSSIBLE_GROUPS) == pytest.approx(m["per_step"])
+        assert len(m["per_slot"]) == 14

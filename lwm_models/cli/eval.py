@@ -96,6 +96,15 @@ def run(args: argparse.Namespace) -> int:
                 f"{im['identity_change_rate']:7.2%} {im['avatar_jump_rate']:7.2%} {im['vanish_rate']:7.2%} "
                 f"{im['reward_without_reach']:6.2f}"
             )
+    leaks = {name: r["impossible_mass"] for name, r in results.items() if "impossible_mass" in r}
+    if leaks:
+        # Teacher-forced on real episodes: probability per step on tokens the game's rules forbid.
+        print(f"{'impossible mass':<22} {'step':>7} {'ids':>7} {'cells':>7} {'reward':>7} {'done':>7}")
+        for name, m in leaks.items():
+            print(
+                f"{name:<22} {m['per_step']:7.4f} {m['identity']:7.4f} {m['position']:7.4f} "
+                f"{m['reward']:7.4f} {m['done']:7.4f}"
+            )
     if args.plot:
         curves = {name: loss_by_prefix(model, data, limit=args.loss_episodes) for name, data in splits.items()}
         record["loss_by_prefix"] = curves

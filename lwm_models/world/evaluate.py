@@ -21,6 +21,7 @@ from ..messenger.constants import (
 )
 from .base import WorldModel
 from .batches import SplitTokens
+from .constraints import StepRules
 from .imagine import imagine
 from .tokens import BLOCK, OBS_TOKENS, SLOT_DONE, SLOT_KIND, SLOT_OBS, SLOT_REWARD
 from .train import evaluate_loss
@@ -225,6 +226,48 @@ def imagination_metrics(
     )
 
 
+IMPOSSIBLE_GROUPS = {"identity": (0, 3, 6, 9), "position": (1, 2, 4, 5, 7, 8, 10, 11), "reward": (12,), "done": (13,)}
+"""A step's 14 sampled slots by what they say: ids, rows and columns, reward, done."""
+
+
+@torch.no_grad()
+def impossible_mass(
+    model: WorldModel,
+    data: SplitTokens,
+    episodes: int | None = None,
+    batch: int = 64,
+    max_steps: int = DEFAULT_MAX_STEPS,
+) -> dict[str, float]:
+    """Teacher-forced on real episodes: the probability the model gives to tokens the game's rules
+    forbid after the real history (world/constraints.py), summed over a step's 14 tokens and
+    averaged over steps (`per_step`), and the same by slot group. Raw sampling turns this mass into
+    impossible imagination (identity changes, vanishings with nothing near, jumps, rewards the
+    observation does not show), step after step; a sharper model has less of it."""
+    model.eval()
+    sums, steps = np.zeros(BLOCK - 1), 0
+    for tokens, lengths, manual in data.full_episodes(batch, episodes):
+        h = model.hidden_states(tokens, model.condition(manual))
+        blocks = tokens.view(len(tokens), -1, BLOCK)
+        for b in range(1, blocks.shape[1]):
+            rows = torch.nonzero(lengths > b).flatten()
+            if not len(rows):
+                break
+            current = blocks[rows, b]
+            at_limit = torch.full((len(rows),), b >= max_steps)
+            rules = StepRules(blocks[rows, b - 1, 1 : 1 + OBS_TOKENS], current[:, 0], at_limit)
+            sampled: list[torch.Tensor] = []
+            for k in range(BLOCK - 1):
+                pos = b * BLOCK + 1 + k
+                probs = torch.softmax(model.next_token_logits(h[rows, pos - 1], pos).float(), dim=-1)
+                sums[k] += float((probs * ~rules.allowed(k, sampled)).sum())
+                sampled.append(current[:, 1 + k])
+            steps += len(rows)
+    per_slot = sums / max(1, steps)
+    out = {"per_step": float(per_slot.sum()), "per_slot": [round(float(x), 5) for x in per_slot]}
+    out.update({name: float(per_slot[list(slots)].sum()) for name, slots in IMPOSSIBLE_GROUPS.items()})
+    return out
+
+
 def evaluate_model(
     model: WorldModel,
     splits: dict[str, SplitTokens],
@@ -240,6 +283,7 @@ def evaluate_model(
         entry = {"cross_entropy": evaluate_loss(model, data, limit=loss_episodes)}
         if imagination_episodes != 0:
             entry["imagination"] = imagination_metrics(model, data, imagination_episodes, seed).as_dict()
+            entry["impossible_mass"] = impossible_mass(model, data, imagination_episodes)
             if constrained:
                 entry["imagination_constrained"] = imagination_metrics(
                     model, data, imagination_episodes, seed, constrained=True
