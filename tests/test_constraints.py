@@ -12,7 +12,7 @@ from game_fixtures import MANUAL, OBS
 
 from lwm_models.messenger import POLICIES, GameSpec, rollout
 from lwm_models.messenger.constants import AVATAR_WITH_MESSAGE, DEFAULT_MAX_STEPS, IDENTITIES, MOVEMENTS, ROLES
-from lwm_models.world.constraints import StepRules
+from lwm_models.world.constraints import StepRules, rule_breaks
 from lwm_models.world.evaluate import consistency_counts
 from lwm_models.world.frozen_text import FrozenTextEncoder
 from lwm_models.world.imagine import imagine
@@ -30,44 +30,17 @@ def _random_games(n: int, seed: int) -> list[GameSpec]:
     return games
 
 
-def _transitions(observations, actions, rewards, dones, lengths, max_steps=DEFAULT_MAX_STEPS):
-    """(previous observation tokens, action, the step's 14 tokens, at the time limit) of every step."""
-    prev, act, block, limit = [], [], [], []
-    for i in range(len(lengths)):
-        for t in range(1, int(lengths[i])):
-            prev.append(obs_to_tokens(observations[i, t - 1]))
-            act.append(int(actions[i, t]))
-            label = int(reward_label(float(rewards[i, t])))
-            block.append(np.concatenate([obs_to_tokens(observations[i, t]), [label, int(dones[i, t])]]))
-            limit.append(t == max_steps)
-    return (
-        torch.tensor(np.array(prev)),
-        torch.tensor(act),
-        torch.tensor(np.array(block), dtype=torch.long),
-        torch.tensor(limit),
-    )
-
-
-def _violations(prev, act, block, limit) -> list[int]:
-    """Per slot, the steps whose token the rules do not allow."""
-    rules, sampled, out = StepRules(prev, act, limit), [], []
-    for k in range(block.shape[1]):
-        allowed = rules.allowed(k, sampled)
-        assert allowed.any(1).all(), f"slot {k}: some row has no token allowed"
-        out.append(int((~allowed[torch.arange(len(block)), block[:, k]]).sum()))
-        sampled.append(block[:, k])
-    return out
-
-
 def test_the_rules_allow_every_transition_of_the_real_game():
     n = 1500
     games = _random_games(n, seed=3)
     ro = rollout(games, np.arange(n) * 31 + 5, np.arange(n) % len(POLICIES))
-    prev, act, block, limit = _transitions(ro.observations, ro.actions, ro.rewards, ro.dones, ro.lengths)
     # Every kind of event is in the sample, or the test would prove little.
     assert {-1.0, 0.5, 1.0} <= set(np.unique(ro.rewards).tolist())
-    assert bool((block[:, 9] == 0).any()) and bool((block[:, 9] == AVATAR_WITH_MESSAGE).any())
-    assert _violations(prev, act, block, limit) == [0] * 14
+    avatar = ro.observations[:, :, 3, 0]
+    assert (avatar == AVATAR_WITH_MESSAGE).any() and ((avatar == 0) & (np.arange(33) < ro.lengths[:, None])).any()
+    assert (ro.lengths == DEFAULT_MAX_STEPS + 1).any()  # episodes that reach the time limit
+    breaks, steps = rule_breaks(ro.observations, ro.actions, ro.rewards, ro.dones, ro.lengths)
+    assert steps == int((ro.lengths - 1).sum()) and breaks.tolist() == [0] * 14
 
 
 def test_the_rules_refuse_what_the_game_cannot_do():
@@ -119,8 +92,11 @@ def test_constrained_imagination_is_consistent_and_raw_rows_are_untouched(sim):
     counts = consistency_counts(im.observations, im.rewards, im.lengths)
     assert counts["transitions"] > 300
     assert counts["identity_changes"] == counts["avatar_jumps"] == counts["vanished_without_reward"] == 0
-    prev, act, block, limit = _transitions(im.observations, im.actions, im.rewards, im.dones, im.lengths)
-    assert _violations(prev, act, block, limit) == [0] * 14
+    breaks, _ = rule_breaks(im.observations, im.actions, im.rewards, im.dones, im.lengths)
+    assert breaks.tolist() == [0] * 14
+    # The same steps sampled raw break rules: the model alone does not keep them.
+    raw = imagine(sim.model, sim._batch, first, n=n, actions=actions, seed=4)
+    assert rule_breaks(raw.observations, raw.actions, raw.rewards, raw.dones, raw.lengths)[0].sum() > 0
     # The model still decides: the trajectories differ, and some end before the time limit.
     assert len({im.observations[i, 5].tobytes() for i in range(n)}) > 1
     assert (im.lengths < steps + 1).any()

@@ -87,14 +87,14 @@ def run(args: argparse.Namespace) -> int:
         # and entity channel, jumps per avatar move, rewards with nothing within one cell).
         print(
             f"{'imagination':<22} {'dDist':>6} {'r-prec':>6} {'r-rec':>6} {'t-prec':>6} {'t-rec':>6} "
-            f"{'id-chg':>7} {'jump':>7} {'vanish':>7} {'r-far':>6}"
+            f"{'id-chg':>7} {'jump':>7} {'vanish':>7} {'r-far':>6} {'breaks':>6}"
         )
         for name, im in imagined.items():
             print(
                 f"{name:<22} {im['delta_dist']:6.2f} {im['reward_precision']:6.2f} {im['reward_recall']:6.2f} "
                 f"{im['termination_precision']:6.2f} {im['termination_recall']:6.2f} "
                 f"{im['identity_change_rate']:7.2%} {im['avatar_jump_rate']:7.2%} {im['vanish_rate']:7.2%} "
-                f"{im['reward_without_reach']:6.2f}"
+                f"{im['reward_without_reach']:6.2f} {im['rule_breaks_per_step']:6.3f}"
             )
     leaks = {name: r["impossible_mass"] for name, r in results.items() if "impossible_mass" in r}
     if leaks:

@@ -27,10 +27,27 @@ Constraints are for plans shown to people; the paper's figures (Table 2) are raw
 
 from __future__ import annotations
 
+import numpy as np
 import torch
 
-from ..messenger.constants import ACTION_DELTAS, AVATAR_NO_MESSAGE, AVATAR_WITH_MESSAGE, GRID, NUM_ACTIONS
-from .tokens import COL_OFFSET, DONE_VOCAB, OBS_TOKENS, OBS_VOCAB, REWARD_VOCAB, ROW_OFFSET, reward_label
+from ..messenger.constants import (
+    ACTION_DELTAS,
+    AVATAR_NO_MESSAGE,
+    AVATAR_WITH_MESSAGE,
+    DEFAULT_MAX_STEPS,
+    GRID,
+    NUM_ACTIONS,
+)
+from .tokens import (
+    COL_OFFSET,
+    DONE_VOCAB,
+    OBS_TOKENS,
+    OBS_VOCAB,
+    REWARD_VOCAB,
+    ROW_OFFSET,
+    obs_to_tokens,
+    reward_label,
+)
 
 
 def _could_collide(dr: torch.Tensor, dc: torch.Tensor) -> torch.Tensor:
@@ -155,4 +172,34 @@ class StepRules:
         return mask
 
 
-__all__ = ["StepRules"]
+def rule_breaks(
+    observations: np.ndarray,
+    actions: np.ndarray,
+    rewards: np.ndarray,
+    dones: np.ndarray,
+    lengths: np.ndarray,
+    max_steps: int = DEFAULT_MAX_STEPS,
+) -> tuple[np.ndarray, int]:
+    """How many tokens of trajectories ([n, T + 1, ...] as imagined or played) break a rule, per
+    slot of the step ([14]), and the number of steps: 0 everywhere for the real game."""
+    prev, act, block, limit = [], [], [], []
+    for i in range(len(lengths)):
+        for t in range(1, int(lengths[i])):
+            prev.append(obs_to_tokens(observations[i, t - 1]))
+            act.append(int(actions[i, t]))
+            label = int(reward_label(float(rewards[i, t])))
+            block.append(np.concatenate([obs_to_tokens(observations[i, t]), [label, int(dones[i, t])]]))
+            limit.append(t >= max_steps)
+    breaks = np.zeros(OBS_TOKENS + 2, dtype=np.int64)
+    if not block:
+        return breaks, 0
+    tokens = torch.tensor(np.array(block), dtype=torch.long)
+    rules = StepRules(torch.tensor(np.array(prev)), torch.tensor(act), torch.tensor(limit))
+    sampled: list[torch.Tensor] = []
+    for k in range(OBS_TOKENS + 2):
+        breaks[k] = int((~rules.allowed(k, sampled)[torch.arange(len(tokens)), tokens[:, k]]).sum())
+        sampled.append(tokens[:, k])
+    return breaks, len(tokens)
+
+
+__all__ = ["StepRules", "rule_breaks"]

@@ -21,7 +21,7 @@ from ..messenger.constants import (
 )
 from .base import WorldModel
 from .batches import SplitTokens
-from .constraints import StepRules
+from .constraints import StepRules, rule_breaks
 from .imagine import imagine
 from .tokens import BLOCK, OBS_TOKENS, SLOT_DONE, SLOT_KIND, SLOT_OBS, SLOT_REWARD
 from .train import evaluate_loss
@@ -124,6 +124,8 @@ class ImaginationMetrics:
         channels counted); avatar_jump_rate: avatar moves longer than one cell per avatar move;
         vanish_rate: entities vanishing without a reward per transition. Real episodes score 0 on
         these three.
+    rule_breaks_per_step: imagined tokens per step that break one of the game's rules
+        (world/constraints.py; 0 for real episodes and under constraints).
     """
 
     delta_dist: float
@@ -135,6 +137,7 @@ class ImaginationMetrics:
     identity_change_rate: float
     avatar_jump_rate: float
     vanish_rate: float
+    rule_breaks_per_step: float
     reward_steps: int
     real_reward_steps: int
     done_steps: int
@@ -162,6 +165,7 @@ def imagination_metrics(
     dist_err, dist_n = 0.0, 0
     reward_ok = reward_n = done_ok = done_n = unreached = 0
     real_rewards = recalled_rewards = real_dones = recalled_dones = 0
+    breaks = break_steps = 0
     counts = dict.fromkeys(
         ("transitions", "identity_changes", "vanished_without_reward", "avatar_moves", "avatar_jumps"), 0
     )
@@ -178,6 +182,8 @@ def imagination_metrics(
         )
         for k, v in consistency_counts(im.observations, im.rewards, im.lengths).items():
             counts[k] += v
+        slots, steps = rule_breaks(im.observations, im.actions, im.rewards, im.dones, im.lengths, max_steps)
+        breaks, break_steps = breaks + int(slots.sum()), break_steps + steps
         for i, ep in enumerate(real):
             entities = [(IDENTITIES[e.identity], e.movement, e.role) for e in ep.game.entities]
             common = min(len(ep.observations), int(im.lengths[i]))
@@ -219,6 +225,7 @@ def imagination_metrics(
         identity_change_rate=counts["identity_changes"] / max(1, counts["transitions"]),
         avatar_jump_rate=counts["avatar_jumps"] / max(1, counts["avatar_moves"]),
         vanish_rate=counts["vanished_without_reward"] / max(1, counts["transitions"]),
+        rule_breaks_per_step=breaks / max(1, break_steps),
         reward_steps=reward_n,
         real_reward_steps=real_rewards,
         done_steps=done_n,
