@@ -191,3 +191,34 @@ def test_batches_follow_the_paper_recipe(tiny_data):
     tokens, lengths, manual = data.sample(rng, 16)
     assert tokens.shape[0] == 16 and tokens.shape[1] == 15 * int(lengths.max())
     assert (lengths >= 2).all() and manual.parse.shape == (16, 3, 3)
+
+
+def test_a_batch_in_parts_has_the_loss_and_gradient_of_one_batch(tiny_data):
+    from lwm_models.world.registry import PRESETS, build_model
+    from lwm_models.world.train import batch_loss
+
+    torch.manual_seed(0)
+    model = build_model("emma", PRESETS["tiny"]).eval()  # eval: no dropout, so the two are comparable
+    data = SplitTokens(tiny_data, "train", model.frozen_text_encoder(), model.route)
+    whole = data.sample(np.random.default_rng(3), 24)
+    parts = data.sample_parts(np.random.default_rng(3), 24, 4)
+    # The same segments, sorted by length and each part padded only to its own longest.
+    assert len(parts) == 4 and sum(len(p[1]) for p in parts) == 24
+    lengths = torch.cat([p[1] for p in parts])
+    assert sorted(lengths.tolist()) == sorted(whole[1].tolist()) and lengths.tolist() == sorted(lengths.tolist())
+    assert all(p[0].shape[1] == 15 * int(p[1].max()) for p in parts)
+    assert sum(p[0].numel() for p in parts) < whole[0].numel()
+
+    def loss_and_grads(outs):
+        model.zero_grad()
+        out = batch_loss(outs)
+        out.loss.backward()
+        return out, [p.grad.clone() for p in model.parameters() if p.grad is not None]
+
+    one, one_grads = loss_and_grads([model(*whole)])
+    split, split_grads = loss_and_grads([model(*p) for p in parts])
+    for k in ("loss", "obs", "reward", "done"):
+        assert float(getattr(split, k)) == pytest.approx(float(getattr(one, k)), rel=1e-5)
+    assert len(one_grads) == len(split_grads) > 10
+    for a, b in zip(one_grads, split_grads, strict=True):
+        torch.testing.assert_close(a, b, rtol=1e-4, atol=1e-6)

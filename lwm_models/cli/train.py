@@ -50,6 +50,7 @@ def add_arguments(p: LwmParser) -> None:
         "attn_dropout": fraction,
         "kv_heads": positive_int,
         "threads": positive_int,
+        "parts": positive_int,
         "max_minutes": positive_float,
         "cpu_budget_minutes": positive_float,
     }

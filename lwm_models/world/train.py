@@ -29,7 +29,7 @@ from safetensors.torch import load_file, save_file
 from torch import nn
 
 from ..errors import LwmError
-from .base import WorldModel
+from .base import LossOutput, WorldModel
 from .batches import SplitTokens
 from .checkpoint import load_checkpoint, publish, recover, save_checkpoint, write_checkpoint
 from .registry import PRESETS, build_model
@@ -59,6 +59,13 @@ class TrainArgs:
         default=None, metadata={"help": "episodes of each dev evaluation (default: the whole eval split)"}
     )
     bf16: bool = field(default=False, metadata={"help": "bf16 autocast on CPU (speed option)"})
+    parts: int = field(
+        default=4,
+        metadata={
+            "help": "compute each batch as this many groups of segments of similar length, each padded to its own "
+            "longest (the same loss and gradient as one padded batch, less padding; 1 under torchrun)"
+        },
+    )
     attn_dropout: float | None = field(
         default=None,
         metadata={"help": "attention dropout (default: the preset's, paper 0.1); 0 enables fused attention"},
@@ -160,6 +167,19 @@ def _load_train_state(path: Path, optimizer: torch.optim.Optimizer, model: nn.Mo
     state = json.loads((path / "train_state.json").read_text())
     torch.set_rng_state(torch.tensor(state["torch_rng"], dtype=torch.uint8))
     return state
+
+
+def batch_loss(outs: list[LossOutput]) -> LossOutput:
+    """The loss of a batch computed in parts: each of obs, reward and done is its summed
+    cross-entropy over all parts divided by its token count over all parts, as if the batch had
+    been one forward (so the gradient is the same)."""
+    if len(outs) == 1:
+        return outs[0]
+    sums = {k: sum(o.sums[k] for o in outs) for k in ("obs", "reward", "done")}
+    counts = {k: sum(o.counts[k] for o in outs) for k in sums}
+    means = {k: sums[k] / counts[k].clamp(min=1) for k in sums}
+    total = means["obs"] + means["reward"] + means["done"]
+    return LossOutput(total, means["obs"], means["reward"], means["done"], sums, counts)
 
 
 @torch.no_grad()
@@ -308,9 +328,10 @@ def train(args: TrainArgs, log=print) -> dict:
         lr = _lr_at(step, args)
         for g in optimizer.param_groups:
             g["lr"] = lr
-        tokens, lengths, manual = train_data.sample(rng, args.batch)
+        # DistributedDataParallel expects one forward per backward: one part there.
+        parts = train_data.sample_parts(rng, args.batch, 1 if distributed else args.parts)
         with torch.autocast("cpu", dtype=torch.bfloat16, enabled=args.bf16):
-            out_ = net(tokens, lengths, manual)
+            out_ = batch_loss([net(tokens, lengths, manual) for tokens, lengths, manual in parts])
         optimizer.zero_grad(set_to_none=True)
         out_.loss.backward()
         grad_norm = float(nn.utils.clip_grad_norm_(model.parameters(), args.clip))
