@@ -128,10 +128,12 @@ class SplitTokens:
     def full_episodes(
         self, batch: int, limit: int | None = None
     ) -> Iterator[tuple[torch.Tensor, torch.Tensor, ManualBatch]]:
-        """Whole episodes in order, for evaluation; `limit` keeps an evenly spaced subset."""
+        """Whole episodes, for evaluation, in batches of similar length (each batch is padded to
+        its longest episode); `limit` keeps an evenly spaced subset."""
         episodes = np.arange(len(self))
         if limit is not None and limit < len(episodes):
             episodes = np.linspace(0, len(episodes) - 1, limit).round().astype(np.int64)
+        episodes = episodes[np.argsort(self.lengths[episodes], kind="stable")]
         for lo in range(0, len(episodes), batch):
             chunk = episodes[lo : lo + batch]
             tokens, lengths = self.segments(chunk, np.zeros(len(chunk), dtype=np.int64))
