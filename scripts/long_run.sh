@@ -6,7 +6,9 @@
 #
 # The recipe is the pilot's winner (results/pilot_partial.txt: lr 1e-3 beat 5e-4 at equal CPU
 # time), for every kind alike so that their figures compare: small preset, lr 1e-3, warm-up 300,
-# cosine to 20,000 steps, one thread, NewAll-dev every 500 steps on 1,500 episodes, 8 CPU-hours.
+# cosine to 60,000 steps, batches in 4 parts of similar-length segments (lwm train --parts: the
+# same gradient as one padded batch at ~2.8x the steps per CPU-hour), one thread, NewAll-dev every
+# 1,000 steps on 1,500 episodes, 8 CPU-hours at most.
 # The code that trains is a git worktree of a fixed commit (CODE_COMMIT, in runs/code-long), so
 # that work on main does not change a run half-way. The run lives in runs/long-KIND, which IS in
 # git (last/ with the optimizer state is 11 MB): a session's machine and work tree do not survive
@@ -17,7 +19,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
-CODE_COMMIT=${CODE_COMMIT:-074b716}
+CODE_COMMIT=${CODE_COMMIT:-12bf308}
 DATA=${DATA:-data/human}
 kind=${1:?usage: scripts/long_run.sh KIND [MAX_MINUTES]}
 minutes=${2:-145}
@@ -40,7 +42,7 @@ if pgrep -f -- "--out $out " > /dev/null; then
     exit 2
 fi
 cmd=(.venv/bin/python -m lwm_models.cli.main train --data "$DATA" --out "$out" --kind "$kind" --preset small
-     --steps 20000 --lr 1e-3 --warmup 300 --cosine --threads 1 --eval-every 500 --eval-episodes 1500
+     --steps 60000 --lr 1e-3 --warmup 300 --cosine --parts 4 --threads 1 --eval-every 1000 --eval-episodes 1500
      --cpu-budget-minutes 480 --max-minutes "$minutes" --no-progress)
 mkdir -p "$out"
 echo "${cmd[*]}" > "$out/cmd.txt"
