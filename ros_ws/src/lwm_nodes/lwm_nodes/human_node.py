@@ -180,7 +180,9 @@ class HumanNode(JsonNode):
         if self.page is not None:
             issued = self.request_issued(request)
             if issued is None:
-                self.get_logger().info(f"label request {request['request_id']} is over (in the ledger); not shown")
+                self.get_logger().info(
+                    f"label request {request['request_id']} is over (in the ledger, or expired); not shown"
+                )
                 return
         waits = request.get("timeout", float("inf"))
         with self.labels_lock:
@@ -208,7 +210,8 @@ class HumanNode(JsonNode):
         """When the planner issued this label request (wall time), or None when it waits for it no
         more, from the planner's ledger. The request is latched: a restarted node gets the last one
         however old, perhaps answered, and the page would ask the person to label it again for
-        nothing. Over: the ledger holds its labels, a later request, a plan or a report after it.
+        nothing. Over: the ledger holds its labels, a later request, a plan or a report after it, or
+        its deadline has passed (the planner may not have written what it did next yet).
         Without the ledger, or with one that does not hold this request (the planner on another
         host; a ledger that cannot be read now), the request is taken as new: a request wrongly
         dropped would end the person's round."""
@@ -228,7 +231,9 @@ class HumanNode(JsonNode):
         for i, rec in enumerate(history):
             if rec["kind"] == "label_request" and all(rec["payload"].get(k) == v for k, v in issued.items()):
                 ends = ("labels", "label_request", "plan", "report")
-                return None if any(later["kind"] in ends for later in history[i + 1 :]) else rec["time"]
+                moved_on = any(later["kind"] in ends for later in history[i + 1 :])
+                expired = rec["time"] + request.get("timeout", float("inf")) <= time.time()
+                return None if moved_on or expired else rec["time"]
         return time.time()
 
     def on_page_feedback(self, body: dict) -> None:

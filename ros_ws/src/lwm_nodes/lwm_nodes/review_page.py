@@ -3,7 +3,7 @@
 Standard library only (http.server): the page (web/review.html, plain JavaScript, no build step),
 a snapshot of what is under review (GET /api/state), live updates as server-sent events (GET
 /api/events: plan, label_request, report, status; a page that connects, or reconnects after a
-node restart, gets what is shown now first), the review history from the ledger (GET
+node restart, gets what is shown now first, "no label request" included), the review history from the ledger (GET
 /api/history, /api/history?review=ID; the node reads the ledger read-only), and the person's
 answers (POST /api/feedback, /api/labels, /api/manual), which the node signs and publishes. It
 binds to localhost unless told otherwise. A POST must be JSON and, when the browser names an
@@ -34,6 +34,10 @@ class ReviewPage:
     answers GET /api/history."""
 
     KINDS = ("plan", "label_request", "report", "status")
+    # Sent to a (re)connecting page even when there is none: the page may still show a request that
+    # ended while it was away (the node restarted, the planner moved on), and would keep asking the
+    # person for labels nobody takes. A plan or report the node has not (yet) had is left as shown.
+    ALWAYS_SENT = ("label_request",)
 
     def __init__(
         self,
@@ -80,7 +84,7 @@ class ReviewPage:
         stream: queue.SimpleQueue = queue.SimpleQueue()
         with self._lock:
             for kind, payload in self._state.items():
-                if payload is not None:
+                if payload is not None or kind in self.ALWAYS_SENT:
                     stream.put((kind, payload))
             self._streams.append(stream)
         return stream
