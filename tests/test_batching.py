@@ -9,21 +9,15 @@ import threading
 import time
 
 import pytest
-import torch
-from game_fixtures import MANUAL, OBS
+from game_fixtures import MANUAL, OBS, shipped_simulator
 
 from lwm_models.world.batching import ImagineServer
 from lwm_models.world.continuous import ContinuousBatch, run_alone
-from lwm_models.world.frozen_text import FrozenTextEncoder
-from lwm_models.world.simulator import Simulator
 
 
 @pytest.fixture(scope="module")
 def sim():
-    torch.set_num_threads(1)
-    s = Simulator(encoder=FrozenTextEncoder())
-    s.set_manual(MANUAL, "test")
-    return s
+    return shipped_simulator()
 
 
 def request(i: int, **extra) -> str:

@@ -8,31 +8,20 @@ import json
 import numpy as np
 import pytest
 import torch
-from game_fixtures import MANUAL, OBS
+from game_fixtures import OBS, random_games, shipped_simulator
 
-from lwm_models.messenger import POLICIES, GameSpec, rollout
-from lwm_models.messenger.constants import AVATAR_WITH_MESSAGE, DEFAULT_MAX_STEPS, IDENTITIES, MOVEMENTS, ROLES
+from lwm_models.messenger import POLICIES, rollout
+from lwm_models.messenger.constants import AVATAR_WITH_MESSAGE, DEFAULT_MAX_STEPS
 from lwm_models.world.constraints import StepRules, rule_breaks
 from lwm_models.world.evaluate import consistency_counts
-from lwm_models.world.frozen_text import FrozenTextEncoder
 from lwm_models.world.imagine import imagine
-from lwm_models.world.simulator import Simulator, serve_json
+from lwm_models.world.simulator import serve_json
 from lwm_models.world.tokens import obs_to_tokens, reward_label
-
-
-def _random_games(n: int, seed: int) -> list[GameSpec]:
-    rng = np.random.default_rng(seed)
-    names = sorted(IDENTITIES)
-    games = []
-    for _ in range(n):
-        ids = rng.choice(len(names), 3, replace=False)
-        games.append(GameSpec.from_triples([(names[ids[k]], MOVEMENTS[rng.integers(3)], ROLES[k]) for k in range(3)]))
-    return games
 
 
 def test_the_rules_allow_every_transition_of_the_real_game():
     n = 1500
-    games = _random_games(n, seed=3)
+    games = random_games(n, seed=3)
     ro = rollout(games, np.arange(n) * 31 + 5, np.arange(n) % len(POLICIES))
     # Every kind of event is in the sample, or the test would prove little.
     assert {-1.0, 0.5, 1.0} <= set(np.unique(ro.rewards).tolist())
@@ -77,10 +66,7 @@ def test_the_rules_refuse_what_the_game_cannot_do():
 
 @pytest.fixture(scope="module")
 def sim():
-    torch.set_num_threads(1)
-    s = Simulator(encoder=FrozenTextEncoder())
-    s.set_manual(MANUAL, "test")
-    return s
+    return shipped_simulator()
 
 
 def test_constrained_imagination_is_consistent_and_raw_rows_are_untouched(sim):

@@ -4,29 +4,18 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from game_fixtures import random_games
 
 from lwm_models.data.splits import load_split
 from lwm_models.errors import GameStateError, InvalidActionError, ShapeError
 from lwm_models.messenger import (
     POLICIES,
     BatchedMessenger,
-    GameSpec,
     MessengerEnv,
     compact_to_grid,
     grid_to_compact,
     rollout,
 )
-from lwm_models.messenger.constants import IDENTITIES, MOVEMENTS, ROLES
-
-
-def random_games(n: int, seed: int) -> list[GameSpec]:
-    rng = np.random.default_rng(seed)
-    names = list(IDENTITIES)
-    games = []
-    for _ in range(n):
-        ids = rng.choice(len(names), 3, replace=False)
-        games.append(GameSpec.from_triples([(names[ids[k]], MOVEMENTS[rng.integers(3)], ROLES[k]) for k in range(3)]))
-    return games
 
 
 def test_batched_engine_replays_the_single_game_reference_exactly():
