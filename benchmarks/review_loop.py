@@ -44,6 +44,7 @@ def run_game(index: int, seed: int, args, work: Path) -> dict:
     cmd += ["--teach", args.teach] + (["--texts", *args.texts] if args.texts else [])
     cmd += ["--language"] if args.language else []
     cmd += ["--constrained"] if args.constrained else []
+    cmd += ["--constrained-learning"] if args.constrained_learning else []
     if args.iterations:
         cmd += ["--iterations", str(args.iterations)]
     env = {**os.environ, "ROS_DOMAIN_ID": str(args.domain), "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
@@ -105,7 +106,13 @@ def main() -> int:
         "--constrained",
         action=argparse.BooleanOptionalAction,
         default=False,
-        help="the planner imagines under the game's rules (decoding constraints)",
+        help="the plans a person reviews are imagined under the game's rules (decoding constraints)",
+    )
+    p.add_argument(
+        "--constrained-learning",
+        action=argparse.BooleanOptionalAction,
+        default=False,
+        help="the planner's learning rounds are imagined under the game's rules too",
     )
     default_texts = [str(TEXTS / "text_train.json"), str(TEXTS / "text_val.json")] if TEXTS.is_dir() else None
     p.add_argument("--texts", nargs="*", default=default_texts, help="description files of the game's manuals")

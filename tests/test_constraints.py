@@ -144,3 +144,22 @@ def test_impossible_mass_sees_how_much_a_model_learnt_the_rules(tmp_path, sim):
     for m in (trained, untrained):
         assert sum(m[name] for name in IMPOSSIBLE_GROUPS) == pytest.approx(m["per_step"])
         assert len(m["per_slot"]) == 14
+
+
+def test_the_planner_can_show_constrained_plans_and_learn_from_raw_ones(sim):
+    """Through the service: an imaginer constrained by default (plans shown to people) imagines
+    nothing impossible, and a rollout asked raw (learning rounds) is the model's own samples."""
+    from lwm_models.agent.imaginer import ServiceImaginer, in_process
+
+    imaginer = ServiceImaginer(in_process(sim), constrained=True)
+    rng = np.random.default_rng(2)
+
+    def policy(obs, idx, t):
+        return rng.integers(5, size=len(idx))
+
+    start = np.array(OBS, dtype=np.uint8)
+    ruled = imaginer.rollout(start, policy, n=32, seed=1)
+    raw = imaginer.rollout(start, policy, n=32, seed=1, constrained=False)
+    for im, broken in ((ruled, False), (raw, True)):
+        breaks, steps = rule_breaks(im.observations, im.actions, im.rewards, im.dones, im.lengths)
+        assert steps > 200 and (breaks.sum() > 0) == broken, breaks

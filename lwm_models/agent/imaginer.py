@@ -83,16 +83,19 @@ class ServiceImaginer:
         max_steps: int = 32,
         seed: int = 0,
         temperature: float = 1.0,
+        constrained: bool | None = None,
     ) -> Imagination:
         """n trajectories from starts ([4, 3], or [n, 4, 3]), each step's actions chosen by
-        policy(observations [k, t, 4, 3], trajectory indices [k], t)."""
+        policy(observations [k, t, 4, 3], trajectory indices [k], t); under the game's rules if
+        `constrained` (None: this imaginer's default)."""
         starts = np.asarray(starts, dtype=np.uint8)
         n = n or (1 if starts.ndim == 2 else len(starts))
-        return self._retrying(lambda: self._rollout_once(starts, policy, n, max_steps, seed, temperature))
+        ruled = self.constrained if constrained is None else constrained
+        return self._retrying(lambda: self._rollout_once(starts, policy, n, max_steps, seed, temperature, ruled))
 
-    def _rollout_once(self, starts, policy, n, max_steps, seed, temperature) -> Imagination:
+    def _rollout_once(self, starts, policy, n, max_steps, seed, temperature, constrained) -> Imagination:
         req = {"op": "open", "n": n, "max_steps": max_steps, "seed": int(seed), "temperature": temperature}
-        if self.constrained:
+        if constrained:
             req["constrained"] = True
         req.update({"observation": starts.tolist()} if starts.ndim == 2 else {"observations": starts.tolist()})
         opened = self.request(req)
@@ -188,7 +191,9 @@ class LocalImaginer:
     manual_version: int = 0
     constrained: bool = False
 
-    def rollout(self, starts, policy, n=None, max_steps=32, seed=0, temperature=1.0) -> Imagination:
+    def rollout(
+        self, starts, policy, n=None, max_steps=32, seed=0, temperature=1.0, constrained=None
+    ) -> Imagination:
         starts = np.asarray(starts, dtype=np.uint8)
         n = n or (1 if starts.ndim == 2 else len(starts))
         return imagine(
@@ -200,7 +205,7 @@ class LocalImaginer:
             max_steps=max_steps,
             seed=seed,
             temperature=temperature,
-            constrained=self.constrained,
+            constrained=self.constrained if constrained is None else constrained,
         )
 
 

@@ -354,6 +354,7 @@ def online_imitation(
                 n=budget.episodes,
                 max_steps=max_steps,
                 seed=seed * 10_000 + u,
+                constrained=budget.constrained,
             )
             spend("imagine", began)
             if pool is None:
@@ -387,7 +388,7 @@ def online_imitation_with(
 
     return online_imitation(
         policy,
-        LocalImaginer(world, world_manual, constrained=budget.constrained),
+        LocalImaginer(world, world_manual),
         policy_manual,
         expert_rounds(labeller, max_steps),
         first_obs,

@@ -256,7 +256,14 @@ def main(argv: list[str] | None = None) -> int:
         "--constrained",
         action=argparse.BooleanOptionalAction,
         default=False,
-        help="the planner imagines under the game's rules (decoding constraints), not the model's raw samples",
+        help="the plans and futures a person reviews are imagined under the game's rules (decoding constraints), "
+        "not the world model's raw samples",
+    )
+    parser.add_argument(
+        "--constrained-learning",
+        action=argparse.BooleanOptionalAction,
+        default=False,
+        help="the planner's learning rounds (online imitation) are imagined under the game's rules too",
     )
     parser.add_argument(
         "--teach",
@@ -316,6 +323,7 @@ def main(argv: list[str] | None = None) -> int:
         human = "interactive"
     planner = {k: str(v) for k, v in (("iterations", args.iterations), ("futures", args.futures)) if v is not None}
     planner["constrained"] = "true" if args.constrained else "false"
+    planner["constrained_learning"] = "true" if args.constrained_learning else "false"
     reviewer = {"teach": args.teach, "quiet": "false" if args.show_frames else "true", "episodes": str(args.episodes)}
     if args.language:
         reviewer.update({"language": "true", **({"texts": ",".join(args.texts)} if args.texts else {})})

@@ -44,6 +44,8 @@ class PlannerNode(JsonNode):
             grad_steps=int(p("grad_steps", Budget.grad_steps).value),
             # The simulator imagines the next round while the planner learns from the last one.
             overlap=bool(p("overlap", ReviewConfig().budget.overlap).value),
+            # Learning rounds imagined under the game's rules too (Table 3: raw learns better).
+            constrained=bool(p("constrained_learning", False).value),
         )
         config = ReviewConfig(
             futures=int(p("futures", ReviewConfig.futures).value),
@@ -54,7 +56,7 @@ class PlannerNode(JsonNode):
             max_rereviews=int(p("max_rereviews", ReviewConfig.max_rereviews).value),
         )
         imagine = self.create_client(Json, "/lwm/imagine")
-        # Plans, futures and learning rounds imagined under the game's rules, or the model's raw samples.
+        # Plans and futures (what a person sees) imagined under the game's rules, or the model's raw samples.
         constrained = bool(p("constrained", False).value)
         self.imaginer = ServiceImaginer(
             json_caller(self, imagine, "imagine_response", call_timeout), constrained=constrained
