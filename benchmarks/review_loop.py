@@ -43,7 +43,7 @@ def run_game(index: int, seed: int, args, work: Path) -> dict:
     cmd += ["--index", str(index), "--seed", str(seed), "--log-dir", str(logs), "--ledger", str(ledger)]
     cmd += ["--teach", args.teach] + (["--texts", *args.texts] if args.texts else [])
     cmd += ["--language"] if args.language else []
-    cmd += ["--constrained"] if args.constrained else []
+    cmd += ["--constrained"] if args.constrained else ["--no-constrained"]
     cmd += ["--constrained-learning"] if args.constrained_learning else []
     if args.iterations:
         cmd += ["--iterations", str(args.iterations)]
@@ -105,7 +105,7 @@ def main() -> int:
     p.add_argument(
         "--constrained",
         action=argparse.BooleanOptionalAction,
-        default=False,
+        default=True,
         help="the plans a person reviews are imagined under the game's rules (decoding constraints)",
     )
     p.add_argument(

@@ -255,9 +255,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--constrained",
         action=argparse.BooleanOptionalAction,
-        default=False,
-        help="the plans and futures a person reviews are imagined under the game's rules (decoding constraints), "
-        "not the world model's raw samples",
+        default=True,
+        help="the plans and futures a person reviews are imagined under the game's rules (decoding constraints); "
+        "--no-constrained shows the world model's raw samples",
     )
     parser.add_argument(
         "--constrained-learning",
