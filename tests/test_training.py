@@ -218,7 +218,7 @@ def test_a_batch_in_parts_has_the_loss_and_gradient_of_one_batch(tiny_data):
     one, one_grads = loss_and_grads([model(*whole)])
     split, split_grads = loss_and_grads([model(*p) for p in parts])
     for k in ("loss", "obs", "reward", "done"):
-        assert float(getattr(split, k)) == pytest.approx(float(getattr(one, k)), rel=1e-5)
+        assert getattr(split, k).item() == pytest.approx(getattr(one, k).item(), rel=1e-5)
     assert len(one_grads) == len(split_grads) > 10
     for a, b in zip(one_grads, split_grads, strict=True):
         torch.testing.assert_close(a, b, rtol=1e-4, atol=1e-6)
