@@ -110,6 +110,7 @@ def test_review_in_the_browser(page_system, browser):
     title = lambda: browser.find_element("id", "plan-title").text  # noqa: E731
     wait.until(lambda _: title().startswith("plan 1 "))
     assert "manual v1" in title() and painted_cells(browser, "board") >= 3  # avatar and entities
+    assert title().endswith("under the game's rules")  # the launcher's default: constrained plans
     assert len(browser.find_elements("css selector", "#legend div")) == 3
     shoot(browser, tmp_path, "review_page_plan.png")
 
