@@ -27,9 +27,16 @@ case "$kind" in
     emma | observational | standard | gpthard) ;;
     *) echo "long_run: unknown kind $kind (emma observational standard gpthard)" >&2; exit 2 ;;
 esac
+scripts/setup_venv.sh
 if [ ! -f "$DATA/index.json" ]; then
-    echo "long_run: no dataset at $DATA (see README: lwm data generate)" >&2
-    exit 2
+    # The dataset is seeded: generating it again on a new machine gives the run the same data.
+    texts=../shared/data/messenger-texts
+    if [ "$DATA" = data/human ] && [ -f "$texts/text_train.json" ]; then
+        .venv/bin/lwm data generate --out "$DATA" --text-source "$texts/text_train.json" "$texts/text_val.json" > /dev/null
+    else
+        echo "long_run: no dataset at $DATA (see README: lwm data generate)" >&2
+        exit 2
+    fi
 fi
 code=runs/code-long
 if [ ! -d "$code" ]; then
