@@ -1,7 +1,8 @@
 #!/usr/bin/env python
-"""Summarise the world-model pilot (scripts/pilot.sh): per variant, the steps done, the speed, and
-the NewAll-dev cross-entropy at equal CPU time and at equal steps; plots dev CE against CPU time
-and against steps.
+"""Summarise world-model runs side by side: the pilot (scripts/pilot.sh, runs/pilot-*) by default,
+or the long runs (`--pattern 'long-*'`, scripts/long_run.sh): per run, the steps done, the speed,
+and the NewAll-dev cross-entropy at equal CPU time and at equal steps; plots dev CE against CPU
+time and against steps.
 
 Reads runs/pilot-*/metrics.jsonl (partial runs are fine). Times are the run's CPU seconds over
 all its chunks (data loading excluded, evaluations included), as `--cpu-budget-minutes` counts
@@ -10,6 +11,7 @@ of the last dev evaluation that had begun by T.
 
 Usage: .venv/bin/python scripts/pilot_report.py [--runs runs] [--png results/pilot_dev_ce.png]
        [--minutes 10 20 30 40] [--steps 250 500 750 1000 1250]
+       [--pattern 'long-*'] [--extra NAME=METRICS.jsonl ...] [--title TEXT]
 """
 
 from __future__ import annotations
@@ -66,6 +68,8 @@ def at_minutes(dev: list[dict], minutes: float) -> dict | None:
 
 
 def status(run: Path) -> str:
+    if run.is_file():
+        return "(file)"
     if (run / "DONE").is_file():
         return "done"
     return "running?" if (run / "metrics.jsonl").is_file() else "not started"
@@ -81,19 +85,31 @@ def main() -> int:
     ap.add_argument("--png", default="results/pilot_dev_ce.png", help="plot file ('' for none)")
     ap.add_argument("--minutes", type=float, nargs="+", default=[10, 20, 30, 40])
     ap.add_argument("--steps", type=int, nargs="+", default=[250, 500, 750, 1000, 1250])
+    ap.add_argument("--pattern", default="pilot-*", help="run directories under --runs (the name follows the '-')")
+    ap.add_argument("--extra", nargs="*", default=[], metavar="NAME=FILE", help="more runs, by their metrics.jsonl")
+    ap.add_argument("--title", default="EMMA-LWM pilot (small preset, cosine schedule of the long run, 1 thread)")
     args = ap.parse_args()
 
+    def name_of(p: Path) -> str:
+        return p.name.split("-", 1)[1]
+
     runs = sorted(
-        (p for p in Path(args.runs).glob("pilot-*") if p.is_dir() and ".partial-" not in p.name),
-        key=lambda p: (ORDER.index(p.name[6:]) if p.name[6:] in ORDER else len(ORDER), p.name),
+        (p for p in Path(args.runs).glob(args.pattern) if p.is_dir() and ".partial-" not in p.name),
+        key=lambda p: (ORDER.index(name_of(p)) if name_of(p) in ORDER else len(ORDER), p.name),
     )
     data = {}
     for run in runs:
         metrics = run / "metrics.jsonl"
         if metrics.is_file():
-            data[run.name[6:]] = (run, *load(metrics))
+            data[name_of(run)] = (run, *load(metrics))
+    for pair in args.extra:
+        name, _, path = pair.partition("=")
+        if not Path(path).is_file():
+            print(f"no metrics file {path}")
+            return 1
+        data[name] = (Path(path), *load(Path(path)))
     if not data:
-        print(f"no pilot runs with metrics under {args.runs}/pilot-*")
+        print(f"no runs with metrics under {args.runs}/{args.pattern}")
         return 1
 
     mins = " ".join(f"{'@' + format(m, 'g') + 'min':>16}" for m in args.minutes)
@@ -145,7 +161,7 @@ def main() -> int:
             ax.set_yscale("log")
             ax.grid(True, which="both", alpha=0.3)
             ax.legend()
-        fig.suptitle("EMMA-LWM pilot (small preset, cosine schedule of the long run, 1 thread)")
+        fig.suptitle(args.title)
         fig.tight_layout()
         Path(args.png).parent.mkdir(parents=True, exist_ok=True)
         fig.savefig(args.png, dpi=110)
