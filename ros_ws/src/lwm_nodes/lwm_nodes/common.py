@@ -3,6 +3,7 @@ spin loop that shuts down cleanly on SIGINT/SIGTERM."""
 
 from __future__ import annotations
 
+import faulthandler
 import os
 import signal
 import sys
@@ -154,6 +155,8 @@ def run(make_node: Callable[[], Node], stop: threading.Event | None = None, thre
         code = 1
     finally:
         marks = [("", time.monotonic())]
+        print("stopping", flush=True)
+        _exit_by_deadline(code, marks)
         if isinstance(node, JsonNode):
             node.close()  # before the executor waits for running callbacks: let them end now
         marks.append(("close", time.monotonic()))
@@ -168,6 +171,28 @@ def run(make_node: Callable[[], Node], stop: threading.Event | None = None, thre
         print(f"stopped in {marks[-1][1] - marks[0][1]:.2f} s ({phases})", flush=True)
         sys.stderr.flush()
     os._exit(code)
+
+
+STOP_DEADLINE_S = 1.5  # teardown may take this long; the process ends by 2 s after the signal
+
+
+def _exit_by_deadline(code: int, marks: list[tuple[str, float]]) -> None:
+    """End the process STOP_DEADLINE_S after teardown began, however far it got. Teardown inside
+    rclpy/Fast DDS stalled now and then (a node not gone 10 s after SIGTERM, issue 12), and
+    nothing left to do there matters once the ledger has committed. Two guards: a Python timer
+    for a stall that releases the GIL, which exits with the run's code and names the phase that
+    stalled; faulthandler's C thread for one that holds the GIL, which needs no Python to run,
+    prints every thread's stack to the log (so the next stall says where it was) and exits 1."""
+
+    def expire() -> None:
+        done = marks[-1][0] or "start"
+        print(f"stop deadline: teardown stalled after '{done}'; exiting anyway", flush=True)
+        os._exit(code)
+
+    timer = threading.Timer(STOP_DEADLINE_S, expire)
+    timer.daemon = True
+    timer.start()
+    faulthandler.dump_traceback_later(STOP_DEADLINE_S + 0.3, exit=True)
 
 
 def json_caller(node: Node, client, kind: str | None, timeout: float) -> Callable[[dict], dict]:
