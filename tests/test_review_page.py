@@ -396,7 +396,21 @@ def test_the_page_survives_node_restarts(page_system, browser):
     assert text("plan-title") == title and text("status").startswith("live ·")
     browser.find_element("id", "approve").click()
     wait.until(lambda _: text("message") == "sent")
-    wait.until(lambda _: browser.find_element("id", "report").is_displayed())
-    assert text("report-title").startswith(f"report, plan {title.split()[1]}: ") and text("plan-title") == title
-    assert received() == ["report"]  # the plan the restarted planner published again is not shown twice
+    asked = {title}  # and the plans the execution monitor asks to review again, approved too
+
+    def reported(_) -> bool:
+        if browser.find_element("id", "report").is_displayed():
+            return True
+        now = text("plan-title")
+        if "(divergence)" in now and now not in asked:
+            asked.add(now)
+            browser.find_element("id", "approve").click()
+        return False
+
+    wait.until(reported)
+    final = text("plan-title")
+    assert text("report-title").startswith(f"report, plan {final.split()[1]}: ")
+    # The plan the restarted planner published again is not shown twice: after the approval only
+    # the plans asked for again from the real state came, then the report.
+    assert received() == ["plan"] * (len(asked) - 1) + ["report"], received()
     assert "resumed from the ledger" in (tmp_path / "logs" / "planner.log").read_text()
