@@ -75,10 +75,11 @@ class ImagineServer:
             raise job.error
         return {**job.response, "seconds": round(time.perf_counter() - began, 4)}
 
-    def close(self, timeout: float = 1.5) -> None:
-        """Stop: the requests being imagined finish (at most one time limit of steps); queued ones
-        are answered with an error at once, so that the node's waiting service calls end and it
-        can exit."""
+    def close(self, timeout: float = 1.0) -> None:
+        """Stop: the requests being imagined may finish for `timeout` seconds (a time limit of 32
+        steps takes about 0.8 s under load); queued ones are answered with an error at once, so
+        that a server's waiting calls end and it can exit within its stop deadline (a ROS node
+        has 1.5 s for all of its teardown)."""
         self._closed.set()
         self._queue.put(None)
         self._worker.join(timeout)
