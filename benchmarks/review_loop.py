@@ -30,6 +30,7 @@ sys.path.insert(0, str(ROOT))
 
 from lwm_models.data.splits import load_split  # noqa: E402
 from lwm_models.ledger import Ledger  # noqa: E402
+from lwm_models.world.shipped import SHIPPED  # noqa: E402
 
 TEXTS = ROOT.parent / "shared" / "data" / "messenger-texts"
 SPOKEN = re.compile(r"manual feedback on plan \d+ at ([\d.]+)")
@@ -153,11 +154,16 @@ def main() -> int:
             f"({over / c * 1000:.2f} ms per call, {over / server:.1%})"
         )
     if args.records.is_file():
+        # Only records of the world model the simulator served (the shipped EMMA-LWM's weights).
+        shipped = json.loads((SHIPPED["emma"] / "config.json").read_text())["sha256"]
         table = {
             rec["game"]: rec["return"]
             for rec in map(json.loads, args.records.read_text().splitlines())
             if rec["setting"] == "online_il" and rec["model"] == "emma" and rec["split"] == args.split
-        }
+            and rec.get("checkpoint") == shipped
+        }  # fmt: skip
+        if not table:
+            print(f"no Table 3 records of the shipped EMMA-LWM ({shipped[:12]}) in {args.records}")
         both = [x for x in rows if x["game"] in table]
         if both:
             t3 = np.mean([table[x["game"]] for x in both])

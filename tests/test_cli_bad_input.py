@@ -17,6 +17,7 @@ from pathlib import Path
 import pytest
 
 from lwm_models.ledger import Ledger
+from lwm_models.world.shipped import SHIPPED
 
 _SCRIPT = Path(sys.executable).with_name("lwm")
 LWM = [str(_SCRIPT)] if _SCRIPT.is_file() else [sys.executable, "-m", "lwm_models.cli.main"]
@@ -120,6 +121,12 @@ CASES: list[tuple[str, list[str], str]] = [
         ["agent", "table3", "--data", "{tmp}/empty", "--records", "{tmp}/constrained.jsonl", "--iterations", "3"],
         "holds records of another budget (constrained, iterations); use another --records",
     ),
+    (
+        "table3 resumed with another checkpoint",
+        ["agent", "table3", "--data", "{tmp}/empty", "--records", "{tmp}/old_emma.jsonl",
+         "--models", f"emma={SHIPPED['emma']}"],  # fmt: skip
+        "holds records of emma from another checkpoint (0123456789ab); use another --records",
+    ),
     # ledger
     ("ledger missing", ["ledger", "show", "--path", "{tmp}/missing.sqlite"], "no ledger at"),
     ("ledger not a database", ["ledger", "show", "--path", "{tmp}/malformed.json"], "is not a ledger"),
@@ -142,6 +149,8 @@ def results(tmp_path_factory: pytest.TempPathFactory) -> dict[str, subprocess.Co
     record = {"setting": "online_il", "model": "emma", "split": "newall-test", "game": 0, "return": 1.0}
     record.update(learn_seconds=1.0, budget={"constrained": True})
     (tmp / "constrained.jsonl").write_text(json.dumps(record) + "\n")
+    old = {**record, "budget": {}, "checkpoint": "0123456789abcdef"}  # the shipped EMMA-LWM before a re-ship
+    (tmp / "old_emma.jsonl").write_text(json.dumps(old) + "\n")
     Ledger(tmp / "ledger.sqlite").record("r1", "plan", {"plan_id": "p1"})
 
     def run(argv: list[str]) -> subprocess.CompletedProcess:

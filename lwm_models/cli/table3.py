@@ -193,6 +193,12 @@ def run_table3(args: argparse.Namespace) -> int:
             raise LwmError(
                 f"{args.records} holds records of another budget ({', '.join(changed)}); use another --records"
             )
+    for r in earlier:  # nor figures of another checkpoint under the same name (a re-shipped model)
+        if r["model"] in models and r.get("checkpoint") != models[r["model"]][1].get("sha256"):
+            raise LwmError(
+                f"{args.records} holds records of {r['model']} from another checkpoint "
+                f"({str(r.get('checkpoint', 'not recorded'))[:12]}); use another --records"
+            )
     done = {(r["setting"], r["model"], r["split"], r["game"]) for r in earlier}
     began, began_cpu = time.perf_counter(), time.process_time()
     todo = []
@@ -212,6 +218,7 @@ def run_table3(args: argparse.Namespace) -> int:
         result = run_game(setting, world, warm, game, manual, encoder, budget, args.seed + g)
         record = {"setting": setting, "model": name, "split": split, "game": g, "seed": args.seed + g, **result}
         record["budget"] = budget.__dict__
+        record["checkpoint"] = config.get("sha256")  # the weights' identity: resuming checks it
         records.append(record)
         if args.records:
             with args.records.open("a") as f:
