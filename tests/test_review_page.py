@@ -94,6 +94,25 @@ def painted_cells(driver, canvas: str) -> int:
     )
 
 
+def approve_until_reported(driver, wait: WebDriverWait, approved: str) -> set[str]:
+    """Wait for the execution report after the plan titled `approved` was approved. The execution
+    monitor may stop and ask for review again from the real state (a plan with reason
+    "divergence"); a person approves each of those too. Returns every plan title approved."""
+    asked = {approved}
+
+    def reported(_) -> bool:
+        if driver.find_element("id", "report").is_displayed():
+            return True
+        now = driver.find_element("id", "plan-title").text
+        if "(divergence)" in now and now not in asked:
+            asked.add(now)
+            driver.find_element("id", "approve").click()
+        return False
+
+    wait.until(reported)
+    return asked
+
+
 def shoot(driver, tmp_path: Path, name: str, panel: str | None = None) -> None:
     """A screenshot of the window, scrolled to `panel` (an element id) when given."""
     script = "const e = document.getElementById(arguments[0]); e ? e.scrollIntoView() : scrollTo(0, 0)"
@@ -157,20 +176,9 @@ def test_review_in_the_browser(page_system, browser):
     ledger.close()
     assert taken == [{"request_id": 1, "labels": 5}, {"request_id": 2, "labels": 2}]  # what the planner took
 
+    approved = title()
     browser.find_element("id", "approve").click()
-    # The execution monitor may stop and ask for review again from the real state (a plan with
-    # reason "divergence"); a person approves that one too, until the report comes.
-    asked = {title()}
-
-    def reported(_) -> bool:
-        if browser.find_element("id", "report").is_displayed():
-            return True
-        if "(divergence)" in title() and title() not in asked:
-            asked.add(title())
-            browser.find_element("id", "approve").click()
-        return False
-
-    wait.until(reported)
+    approve_until_reported(browser, wait, approved)
     report = browser.find_element("id", "report-title").text
     assert report.startswith("report, plan ") and "real return" in report
     assert painted_cells(browser, "real") >= 2 and painted_cells(browser, "planned") >= 2
@@ -396,18 +404,7 @@ def test_the_page_survives_node_restarts(page_system, browser):
     assert text("plan-title") == title and text("status").startswith("live ·")
     browser.find_element("id", "approve").click()
     wait.until(lambda _: text("message") == "sent")
-    asked = {title}  # and the plans the execution monitor asks to review again, approved too
-
-    def reported(_) -> bool:
-        if browser.find_element("id", "report").is_displayed():
-            return True
-        now = text("plan-title")
-        if "(divergence)" in now and now not in asked:
-            asked.add(now)
-            browser.find_element("id", "approve").click()
-        return False
-
-    wait.until(reported)
+    asked = approve_until_reported(browser, wait, title)
     final = text("plan-title")
     assert text("report-title").startswith(f"report, plan {final.split()[1]}: ")
     # The plan the restarted planner published again is not shown twice: after the approval only

@@ -193,7 +193,7 @@ def run_table3(args: argparse.Namespace) -> int:
             raise LwmError(
                 f"{args.records} holds records of another budget ({', '.join(changed)}); use another --records"
             )
-    for r in earlier:  # nor figures of another checkpoint under the same name (a re-shipped model)
+        # nor figures of another checkpoint under the same name (a re-shipped model)
         if r["model"] in models and r.get("checkpoint") != models[r["model"]][1].get("sha256"):
             raise LwmError(
                 f"{args.records} holds records of {r['model']} from another checkpoint "
