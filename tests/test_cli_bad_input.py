@@ -123,8 +123,16 @@ CASES: list[tuple[str, list[str], str]] = [
     ),
     (
         "table3 resumed with another checkpoint",
-        ["agent", "table3", "--data", "{tmp}/empty", "--records", "{tmp}/old_emma.jsonl",
-         "--models", f"emma={SHIPPED['emma']}"],  # fmt: skip
+        [
+            "agent",
+            "table3",
+            "--data",
+            "{tmp}/empty",
+            "--records",
+            "{tmp}/old_emma.jsonl",
+            "--models",
+            f"emma={SHIPPED['emma']}",
+        ],
         "holds records of emma from another checkpoint (0123456789ab); use another --records",
     ),
     # ledger

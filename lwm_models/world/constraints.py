@@ -59,6 +59,7 @@ def _could_collide(dr: torch.Tensor, dc: torch.Tensor) -> torch.Tensor:
     """
     return (dr.abs() <= 1) & (dc.abs() <= 1) & ~((dr == 1) & (dc == 1))
 
+
 _DELTAS = torch.tensor(ACTION_DELTAS + ((0, 0),), dtype=torch.long)  # the dummy action stays
 _DEATH, _PICKUP, _WIN, _NONE = (int(reward_label(r)) for r in (-1.0, 0.5, 1.0, 0.0))
 
