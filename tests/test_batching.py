@@ -11,7 +11,7 @@ import time
 import pytest
 from game_fixtures import MANUAL, OBS, shipped_simulator
 
-from lwm_models.world.batching import ImagineServer
+from lwm_models.world.batching import ImagineServer, WorkerImagineServer
 from lwm_models.world.continuous import ContinuousBatch, run_alone
 
 
@@ -165,4 +165,61 @@ def test_closing_answers_the_waiting_requests_at_once(sim):
     for i in range(1, 6):
         assert answers[i][1] is not None and "shutting down" in answers[i][0]["error"]
     text, error = server.serve(request(9))
+    assert error is not None and "shutting down" in json.loads(text)["error"]
+
+
+@pytest.fixture(scope="module")
+def worker_server(sim):
+    server = WorkerImagineServer(sim)
+    yield server
+    server.close()
+
+
+def test_the_worker_process_answers_as_the_thread_does_and_batches(sim, worker_server):
+    # The simulator node's server: the same answers as a call alone, while concurrent calls share
+    # the worker process's steps.
+    alone = {i: sim.handle(json.loads(request(i))) for i in range(8)}
+    answers: dict[int, str] = {}
+    gate = threading.Barrier(8)
+
+    def client(i: int) -> None:
+        gate.wait()
+        answers[i], error = worker_server.serve(request(i))
+        assert error is None
+
+    threads = [threading.Thread(target=client, args=(i,)) for i in range(8)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(60)
+    assert sorted(answers) == list(range(8))
+    for i, answer in answers.items():
+        assert trajectories(answer) == trajectories(json.dumps(alone[i])), f"request {i} differs in the worker"
+    assert max(json.loads(a)["batched"] for a in answers.values()) > 1
+    bad, error = worker_server.serve(json.dumps({"version": 1, "observations": [OBS, OBS], "n": 3, "max_steps": 4}))
+    assert error is not None and "one per trajectory" in json.loads(bad)["error"]
+
+
+def test_a_killed_worker_fails_its_calls_and_is_started_again(sim):
+    server = WorkerImagineServer(sim)
+    try:
+        results = []
+        long_call = json.dumps({"version": 1, "observation": OBS, "n": 256, "max_steps": 32, "seed": 1})
+        caller = threading.Thread(target=lambda: results.append(server.serve(long_call)))
+        caller.start()
+        time.sleep(0.4)  # the call is being imagined (it takes about 2 s)
+        first = server._proc
+        first.kill()
+        caller.join(30)
+        text, error = results[0]
+        assert error is not None and "worker stopped" in json.loads(text)["error"]
+        deadline = time.time() + 30
+        while server.restarts < 1 and time.time() < deadline:
+            time.sleep(0.1)
+        text, error = server.serve(request(3))
+        assert error is None and json.loads(text)["ok"] and server._proc is not first and server.restarts == 1
+    finally:
+        server.close()
+    assert server._proc.poll() is not None  # closing ended the worker process
+    text, error = server.serve(request(4))
     assert error is not None and "shutting down" in json.loads(text)["error"]

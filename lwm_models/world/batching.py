@@ -10,18 +10,26 @@ request starts at once, and one that arrives under load joins at the next step.
 
 Each request keeps its own seeded random stream inside the batch, so its answer is the one it
 would get alone. Session ops (open/step/close) are not batched: they run in the caller's thread.
+
+`WorkerImagineServer` runs the same batch in a process of its own (world/batch_worker.py), so that
+the model's steps do not share a GIL with the threads that receive and answer the calls: what the
+simulator node uses.
 """
 
 from __future__ import annotations
 
+import itertools
 import queue
+import subprocess
 import threading
 import time
 from collections import deque
 from dataclasses import dataclass, field
 
 from ..errors import LwmError
+from .batch_worker import STOP, start_worker, track_message
 from .continuous import MAX_ROWS, ContinuousBatch, Track
+from .imagine import Imagination
 from .simulator import Simulator, serve_json
 
 
@@ -29,10 +37,15 @@ class ShuttingDown(LwmError):
     """A request that arrived or waited while the server stopped."""
 
 
+class WorkerLost(LwmError):
+    """The worker process ended while a request was being imagined (it is started again)."""
+
+
 @dataclass
 class _Job:
     request: dict
     size: int  # trajectories
+    track: Track | None = None  # built by the server (WorkerImagineServer)
     done: threading.Event = field(default_factory=threading.Event)
     response: dict | None = None
     error: Exception | None = None
@@ -138,4 +151,113 @@ class ImagineServer:
         track.info["job"].finish({**self.sim.answer(track), "batched": track.peak})
 
 
-__all__ = ["ImagineServer", "ShuttingDown"]
+class WorkerImagineServer(ImagineServer):
+    """The ImagineServer with its batch in a worker process. The server's threads parse each call
+    and build its track (conditioning on the manual current when it arrives); the worker admits,
+    steps and sends back what was imagined; a receiver thread hands each answer to its caller. A
+    worker that dies is started again: the calls it was imagining get an error, later ones are
+    served."""
+
+    def __init__(self, sim: Simulator, max_trajectories: int = MAX_ROWS, threads: int = 1) -> None:
+        self.sim = sim
+        self.max_trajectories, self.threads = max_trajectories, threads
+        self.requests = 0
+        self.restarts = 0  # worker processes started again after one died
+        self._closed = threading.Event()
+        self._jobs: dict[int, _Job] = {}
+        self._ids = itertools.count()
+        self._lock = threading.Lock()  # the jobs table and the pipe's sending end
+        self._proc, self._conn = start_worker(sim.checkpoint, max_trajectories, threads)
+        self._worker = threading.Thread(target=self._receive, name="imagine-receiver", daemon=True)
+        self._worker.start()
+
+    def handle(self, request: dict) -> dict:
+        if not self.sim.is_one_shot(request):
+            return self.sim.handle(request)
+        if self._closed.is_set():
+            raise ShuttingDown("the simulator is shutting down")
+        began = time.perf_counter()
+        track = self.sim.one_shot(request)  # a request that cannot be served fails here, alone
+        job = _Job(request, track.size, track)
+        with self._lock:
+            key = next(self._ids)
+            self._jobs[key] = job
+            try:
+                self._conn.send(track_message(key, track))
+            except (OSError, ValueError):  # the worker is gone; the receiver starts another
+                self._jobs.pop(key, None)
+                raise WorkerLost("the imagination worker stopped; try again") from None
+        while not job.done.wait(0.5):
+            if not self._worker.is_alive():
+                raise ShuttingDown("the simulator is shutting down")
+        if job.error is not None:
+            raise job.error
+        imagination, peak = job.response
+        self.requests += 1
+        return {
+            **self.sim.response(imagination, track.info),
+            "batched": peak,
+            "seconds": round(time.perf_counter() - began, 4),
+        }
+
+    def close(self, timeout: float = 1.0) -> None:
+        """Stop: the worker answers what it is imagining for up to `timeout` seconds and refuses
+        what waits; then it is killed if it has not ended."""
+        self._closed.set()
+        with self._lock:
+            try:
+                self._conn.send(STOP)
+            except (OSError, ValueError):
+                pass
+        try:
+            self._proc.wait(timeout)
+        except subprocess.TimeoutExpired:
+            self._proc.kill()
+            self._proc.wait(0.2)
+        self._worker.join(0.1)
+        self._fail_all(ShuttingDown("the simulator is shutting down"))
+
+    def _receive(self) -> None:
+        while True:
+            try:
+                key, payload, peak = self._conn.recv()
+            except (EOFError, OSError):
+                if self._closed.is_set():
+                    return self._fail_all(ShuttingDown("the simulator is shutting down"))
+                self._fail_all(WorkerLost("the imagination worker stopped; try again"))
+                if not self._restart():
+                    return
+                continue
+            with self._lock:
+                job = self._jobs.pop(key, None)
+            if job is None:
+                continue
+            if isinstance(payload, Imagination):
+                job.finish((payload, peak))
+            elif "shutting down" in payload:
+                job.finish(error=ShuttingDown(payload))
+            else:
+                job.finish(error=LwmError(payload))
+
+    def _restart(self) -> bool:
+        try:
+            self._proc.wait(0.5)
+        except subprocess.TimeoutExpired:
+            self._proc.kill()
+        try:
+            proc, conn = start_worker(self.sim.checkpoint, self.max_trajectories, self.threads)
+        except RuntimeError:
+            return False
+        with self._lock:
+            self._proc, self._conn = proc, conn
+        self.restarts += 1
+        return True
+
+    def _fail_all(self, error: Exception) -> None:
+        with self._lock:
+            jobs, self._jobs = list(self._jobs.values()), {}
+        for job in jobs:
+            job.finish(error=error)
+
+
+__all__ = ["ImagineServer", "ShuttingDown", "WorkerImagineServer", "WorkerLost"]

@@ -33,7 +33,7 @@ from .base import Conditioning
 from .checkpoint import load_checkpoint
 from .continuous import Track, run_alone
 from .frozen_text import FrozenTextEncoder
-from .imagine import Rollout, condition_rows
+from .imagine import Imagination, Rollout, condition_rows
 from .manual import ManualBatch
 from .shipped import shipped_checkpoint
 
@@ -227,12 +227,16 @@ class Simulator:
 
     def answer(self, track: Track) -> dict:
         """The response to a one-shot request whose track has ended."""
+        return self.response(track.result(), track.info)
+
+    def response(self, imagination: Imagination, info: dict) -> dict:
+        """The response to a one-shot request: what was imagined, under the manual in `info`."""
         return {
             "ok": True,
             "model": self.model_name,
-            "manual_version": track.info["manual_version"],
-            "manual": track.info["manual"],
-            "trajectories": track.result().to_json(),
+            "manual_version": info["manual_version"],
+            "manual": info["manual"],
+            "trajectories": imagination.to_json(),
         }
 
     def _trajectories(self, request: dict, max_steps: int) -> tuple[np.ndarray, np.ndarray]:

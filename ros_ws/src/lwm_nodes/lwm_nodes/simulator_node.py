@@ -7,8 +7,9 @@ which manual version is current, so the planner re-plans when it changes. The ma
 version survive a restart (parameter `state`).
 
 Concurrent /lwm/imagine calls are served by a pool of executor threads; one-shot calls share the
-model's steps (continuous batching, lwm_models.world.batching): SERVICE_THREADS bounds how many
-calls wait at once.
+model's steps (continuous batching, lwm_models.world.batching) in a worker process of the node's
+own, so that stepping the model does not compete for this process's GIL with the threads that
+receive and answer calls. SERVICE_THREADS bounds how many calls wait at once.
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ from __future__ import annotations
 from lwm_interfaces.srv import Json
 from rclpy.callback_groups import ReentrantCallbackGroup
 
-from lwm_models.world.batching import ImagineServer
+from lwm_models.world.batching import WorkerImagineServer
 from lwm_models.world.simulator import Simulator
 from lwm_nodes.common import LATCHED, JsonNode, run
 from lwm_nodes.trust import declare_keyring, verified
@@ -28,7 +29,7 @@ class SimulatorNode(JsonNode):
     def __init__(self) -> None:
         super().__init__("lwm_simulator")
         checkpoint = self.declare_parameter("checkpoint", "").value
-        self.declare_threads()
+        threads = self.declare_threads()
         state = self.declare_parameter("state", "").value  # JSON file keeping manual and version
         self.follow_env = self.declare_parameter("follow_env_manual", True).value
         max_sessions = int(self.declare_parameter("max_sessions", 32).value)
@@ -42,7 +43,8 @@ class SimulatorNode(JsonNode):
         on_feedback = verified(declare_keyring(self), "manual", "/feedback/manual", self.on_feedback)
         self.json_subscription("/feedback/manual", "manual", on_feedback, LATCHED)
         self.json_subscription("/env/manual", "manual", self.on_env_manual, LATCHED)
-        self.server = ImagineServer(self.sim, int(self.declare_parameter("max_batch_trajectories", 256).value))
+        max_rows = int(self.declare_parameter("max_batch_trajectories", 256).value)
+        self.server = WorkerImagineServer(self.sim, max_rows, threads)
         self.create_service(Json, "/lwm/imagine", self.on_imagine, callback_group=ReentrantCallbackGroup())
         self.publish_status(self.sim.status())
         self.get_logger().info(
