@@ -193,7 +193,7 @@ class WorldModel(nn.Module):
         for i, block in enumerate(self.blocks):
             x = block(x, cache, i, memory_kv[i] if memory_kv else None, cond.memory_mask)
         if cache is not None:
-            cache.end(n)
+            cache.advance(n)
         return self.ln_f(x)
 
     def _memory_kv(self, cond: Conditioning, cache: KVCache | None):
