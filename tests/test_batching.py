@@ -208,7 +208,7 @@ def test_a_killed_worker_fails_its_calls_and_is_started_again(sim):
         caller = threading.Thread(target=lambda: results.append(server.serve(long_call)))
         caller.start()
         time.sleep(0.4)  # the call is being imagined (it takes about 2 s)
-        first = server._proc
+        first = server.workers[0].proc
         first.kill()
         caller.join(30)
         text, error = results[0]
@@ -217,9 +217,9 @@ def test_a_killed_worker_fails_its_calls_and_is_started_again(sim):
         while server.restarts < 1 and time.time() < deadline:
             time.sleep(0.1)
         text, error = server.serve(request(3))
-        assert error is None and json.loads(text)["ok"] and server._proc is not first and server.restarts == 1
+        assert error is None and json.loads(text)["ok"] and server.workers[0].proc is not first and server.restarts == 1
     finally:
         server.close()
-    assert server._proc.poll() is not None  # closing ended the worker process
+    assert server.workers[0].proc.poll() is not None  # closing ended the worker process
     text, error = server.serve(request(4))
     assert error is not None and "shutting down" in json.loads(text)["error"]

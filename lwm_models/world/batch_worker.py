@@ -89,23 +89,27 @@ def serve_batches(conn: Connection, checkpoint: str, max_rows: int, threads: int
         return
 
 
-def start_worker(checkpoint: str | Path, max_rows: int, threads: int) -> tuple[subprocess.Popen, Connection]:
-    """Start a worker process and wait for it to have loaded the model; returns (process, the
-    server's end of the pipe). A fresh interpreter (`python -m`), not a fork: the server has
-    threads, ROS's among them, and multiprocessing's spawn would import the server's main module."""
+def launch_worker(checkpoint: str | Path, max_rows: int, threads: int) -> tuple[subprocess.Popen, Connection]:
+    """Start a worker process; returns (process, the server's end of the pipe) at once, before it
+    has loaded the model (`await_ready`). A fresh interpreter (`python -m`), not a fork: the server
+    has threads, ROS's among them, and multiprocessing's spawn would import the server's main module."""
     ours, theirs = socket.socketpair()
     cmd = [sys.executable, "-m", __name__, str(theirs.fileno()), str(checkpoint), str(max_rows), str(threads)]
     proc = subprocess.Popen(cmd, pass_fds=(theirs.fileno(),))
     theirs.close()
-    conn = Connection(ours.detach())
+    return proc, Connection(ours.detach())
+
+
+def await_ready(proc: subprocess.Popen, conn: Connection, timeout: float = 120) -> None:
+    """Wait for a launched worker to have loaded its model; RuntimeError (and the worker killed) if
+    it does not."""
     try:
-        ready = conn.poll(120) and conn.recv()[0] == "ready"
+        ready = conn.poll(timeout) and conn.recv()[0] == "ready"
     except (EOFError, OSError):
         ready = False
     if not ready:
         proc.kill()
         raise RuntimeError(f"the imagination worker process did not start (exit code {proc.wait()})")
-    return proc, conn
 
 
 def main(argv: list[str]) -> None:
@@ -113,7 +117,7 @@ def main(argv: list[str]) -> None:
     serve_batches(Connection(int(fd)), checkpoint, int(max_rows), int(threads))
 
 
-__all__ = ["STOP", "serve_batches", "start_worker", "track_message"]
+__all__ = ["STOP", "await_ready", "launch_worker", "serve_batches", "track_message"]
 
 
 if __name__ == "__main__":

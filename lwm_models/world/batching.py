@@ -24,10 +24,12 @@ import subprocess
 import threading
 import time
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass, field
+from multiprocessing.connection import Connection
 
 from ..errors import LwmError
-from .batch_worker import STOP, start_worker, track_message
+from .batch_worker import STOP, await_ready, launch_worker, track_message
 from .continuous import MAX_ROWS, ContinuousBatch, Track
 from .imagine import Imagination
 from .simulator import Simulator, serve_json
@@ -151,25 +153,127 @@ class ImagineServer:
         track.info["job"].finish({**self.sim.answer(track), "batched": track.peak})
 
 
-class WorkerImagineServer(ImagineServer):
-    """The ImagineServer with its batch in a worker process. The server's threads parse each call
-    and build its track (conditioning on the manual current when it arrives); the worker admits,
-    steps and sends back what was imagined; a receiver thread hands each answer to its caller. A
-    worker that dies is started again: the calls it was imagining get an error, later ones are
-    served."""
+class _Worker:
+    """One worker process, its pipe, the calls it is imagining and the thread that receives its
+    answers; it starts a new process when its process dies (the calls it had get an error)."""
 
-    def __init__(self, sim: Simulator, max_trajectories: int = MAX_ROWS, threads: int = 1) -> None:
+    def __init__(self, name: str, launch: Callable[[], tuple[subprocess.Popen, Connection]], closed: threading.Event):
+        self.name, self._launch, self._closed = name, launch, closed
+        self.proc, self.conn = launch()
+        self.jobs: dict[int, _Job] = {}
+        self.load = 0  # trajectories of the calls it has
+        self.restarts = 0
+        self.lock = threading.Lock()  # jobs, load and the pipe's sending end
+        self.receiver = threading.Thread(target=self._receive, name=f"{name}-receiver", daemon=True)
+
+    def start(self) -> None:
+        await_ready(self.proc, self.conn)
+        self.receiver.start()
+
+    def submit(self, key: int, job: _Job) -> None:
+        with self.lock:
+            self.jobs[key] = job
+            self.load += job.size
+            try:
+                self.conn.send(track_message(key, job.track))
+            except (OSError, ValueError):  # the process is gone; the receiver starts another
+                self._pop(key)
+                raise WorkerLost("the imagination worker stopped; try again") from None
+
+    def stop(self) -> None:
+        with self.lock:
+            try:
+                self.conn.send(STOP)
+            except (OSError, ValueError):
+                pass
+
+    def wait(self, timeout: float) -> None:
+        try:
+            self.proc.wait(max(timeout, 0.0))
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            self.proc.wait(0.2)
+
+    def fail_all(self, error: Exception) -> None:
+        with self.lock:
+            jobs, self.jobs, self.load = list(self.jobs.values()), {}, 0
+        for job in jobs:
+            job.finish(error=error)
+
+    def _pop(self, key: int) -> _Job | None:
+        job = self.jobs.pop(key, None)
+        if job is not None:
+            self.load -= job.size
+        return job
+
+    def _receive(self) -> None:
+        while True:
+            try:
+                key, payload, peak = self.conn.recv()
+            except (EOFError, OSError):
+                if self._closed.is_set():
+                    return self.fail_all(ShuttingDown("the simulator is shutting down"))
+                self.fail_all(WorkerLost("the imagination worker stopped; try again"))
+                if not self._restart():
+                    return
+                continue
+            with self.lock:
+                job = self._pop(key)
+            if job is None:
+                continue
+            if isinstance(payload, Imagination):
+                job.finish((payload, peak))
+            elif "shutting down" in payload:
+                job.finish(error=ShuttingDown(payload))
+            else:
+                job.finish(error=LwmError(payload))
+
+    def _restart(self) -> bool:
+        self.wait(0.5)
+        try:
+            proc, conn = self._launch()
+            await_ready(proc, conn)
+        except (RuntimeError, OSError):
+            return False
+        with self.lock:
+            self.proc, self.conn = proc, conn
+        self.restarts += 1
+        return True
+
+
+class WorkerImagineServer(ImagineServer):
+    """The ImagineServer with its batches in worker processes. The server's threads parse each call
+    and build its track (conditioning on the manual current when it arrives) and send it to the
+    worker with the fewest trajectories in hand; the worker admits it into its continuous batch,
+    steps and sends back what was imagined; a receiver thread per worker hands each answer to its
+    caller. A worker that dies is started again: the calls it was imagining get an error, later
+    ones are served.
+
+    workers: processes, each with its own batch and one core's worth of model steps. A step of
+    the small model costs nearly as much for one row as for eight, so one worker gives 8 clients
+    the most rows per step; a second one uses a second core (README, "Under load and abuse")."""
+
+    def __init__(self, sim: Simulator, max_trajectories: int = MAX_ROWS, threads: int = 1, workers: int = 1) -> None:
+        if workers < 1:
+            raise ValueError(f"workers must be >= 1, got {workers}")
         self.sim = sim
-        self.max_trajectories, self.threads = max_trajectories, threads
         self.requests = 0
-        self.restarts = 0  # worker processes started again after one died
         self._closed = threading.Event()
-        self._jobs: dict[int, _Job] = {}
         self._ids = itertools.count()
-        self._lock = threading.Lock()  # the jobs table and the pipe's sending end
-        self._proc, self._conn = start_worker(sim.checkpoint, max_trajectories, threads)
-        self._worker = threading.Thread(target=self._receive, name="imagine-receiver", daemon=True)
-        self._worker.start()
+        self._pick = threading.Lock()
+
+        def launch() -> tuple[subprocess.Popen, Connection]:
+            return launch_worker(sim.checkpoint, max_trajectories, threads)
+
+        # Launched together, so that their start-up (loading torch and the model) overlaps.
+        self.workers = [_Worker(f"imagine-worker-{i}", launch, self._closed) for i in range(workers)]
+        for worker in self.workers:
+            worker.start()
+
+    @property
+    def restarts(self) -> int:
+        """Worker processes started again after one died."""
+        return sum(w.restarts for w in self.workers)
 
     def handle(self, request: dict) -> dict:
         if not self.sim.is_one_shot(request):
@@ -179,16 +283,11 @@ class WorkerImagineServer(ImagineServer):
         began = time.perf_counter()
         track = self.sim.one_shot(request)  # a request that cannot be served fails here, alone
         job = _Job(request, track.size, track)
-        with self._lock:
-            key = next(self._ids)
-            self._jobs[key] = job
-            try:
-                self._conn.send(track_message(key, track))
-            except (OSError, ValueError):  # the worker is gone; the receiver starts another
-                self._jobs.pop(key, None)
-                raise WorkerLost("the imagination worker stopped; try again") from None
+        with self._pick:
+            worker = min(self.workers, key=lambda w: w.load)
+            worker.submit(next(self._ids), job)
         while not job.done.wait(0.5):
-            if not self._worker.is_alive():
+            if not worker.receiver.is_alive():
                 raise ShuttingDown("the simulator is shutting down")
         if job.error is not None:
             raise job.error
@@ -201,63 +300,17 @@ class WorkerImagineServer(ImagineServer):
         }
 
     def close(self, timeout: float = 1.0) -> None:
-        """Stop: the worker answers what it is imagining for up to `timeout` seconds and refuses
-        what waits; then it is killed if it has not ended."""
+        """Stop: each worker answers what it is imagining for up to `timeout` seconds in all and
+        refuses what waits; then one that has not ended is killed."""
         self._closed.set()
-        with self._lock:
-            try:
-                self._conn.send(STOP)
-            except (OSError, ValueError):
-                pass
-        try:
-            self._proc.wait(timeout)
-        except subprocess.TimeoutExpired:
-            self._proc.kill()
-            self._proc.wait(0.2)
-        self._worker.join(0.1)
-        self._fail_all(ShuttingDown("the simulator is shutting down"))
-
-    def _receive(self) -> None:
-        while True:
-            try:
-                key, payload, peak = self._conn.recv()
-            except (EOFError, OSError):
-                if self._closed.is_set():
-                    return self._fail_all(ShuttingDown("the simulator is shutting down"))
-                self._fail_all(WorkerLost("the imagination worker stopped; try again"))
-                if not self._restart():
-                    return
-                continue
-            with self._lock:
-                job = self._jobs.pop(key, None)
-            if job is None:
-                continue
-            if isinstance(payload, Imagination):
-                job.finish((payload, peak))
-            elif "shutting down" in payload:
-                job.finish(error=ShuttingDown(payload))
-            else:
-                job.finish(error=LwmError(payload))
-
-    def _restart(self) -> bool:
-        try:
-            self._proc.wait(0.5)
-        except subprocess.TimeoutExpired:
-            self._proc.kill()
-        try:
-            proc, conn = start_worker(self.sim.checkpoint, self.max_trajectories, self.threads)
-        except RuntimeError:
-            return False
-        with self._lock:
-            self._proc, self._conn = proc, conn
-        self.restarts += 1
-        return True
-
-    def _fail_all(self, error: Exception) -> None:
-        with self._lock:
-            jobs, self._jobs = list(self._jobs.values()), {}
-        for job in jobs:
-            job.finish(error=error)
+        deadline = time.monotonic() + timeout
+        for worker in self.workers:
+            worker.stop()
+        for worker in self.workers:
+            worker.wait(deadline - time.monotonic())
+        for worker in self.workers:
+            worker.receiver.join(0.05)
+            worker.fail_all(ShuttingDown("the simulator is shutting down"))
 
 
 __all__ = ["ImagineServer", "ShuttingDown", "WorkerImagineServer", "WorkerLost"]

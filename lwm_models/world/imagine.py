@@ -10,6 +10,7 @@ simulator's continuous batching of requests uses (world/continuous.py).
 
 from __future__ import annotations
 
+from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -20,6 +21,7 @@ from ..errors import ShapeError
 from ..messenger.constants import DEFAULT_MAX_STEPS, NUM_ACTIONS, NUM_CHANNELS
 from .base import Conditioning, ManualBatch, WorldModel
 from .constraints import StepRules
+from .gpt import KVCache
 from .tokens import (
     BLOCK,
     DUMMY_ACTION,
@@ -100,10 +102,14 @@ class Rows:
     what a row samples does not depend on which other rows share its steps.
     """
 
-    def __init__(self, model: WorldModel, use_cache: bool = True) -> None:
+    def __init__(self, model: WorldModel, use_cache: bool = True, first_blocks: int = 0) -> None:
+        """first_blocks: how many first blocks' keys and values to keep for rows that join later
+        with the same start observation and conditioning (0: none; see `_first_block`)."""
         model.eval()
         self.model = model
         self.cache = model.new_cache(0) if use_cache else None
+        self.first_blocks: OrderedDict[tuple, tuple[torch.Tensor, torch.Tensor]] = OrderedDict()
+        self.max_first_blocks = first_blocks if use_cache else 0
         self.history: torch.Tensor | None = None  # without a cache: every row's tokens so far
         self.cond: Conditioning | None = None
         self.pending = torch.zeros(0, dtype=torch.long)  # each row's last done token
@@ -138,9 +144,7 @@ class Rows:
         block[:, -1] = FIRST_REWARD_LABEL
         tokens = torch.from_numpy(block)
         if self.cache is not None:
-            joining = self.model.new_cache(n)
-            self.model.hidden_states(tokens, cond, joining)
-            self.cache.extend(joining)
+            self.cache.extend(self._first_block(tokens, cond))
         elif len(self):
             raise ValueError("without a KV cache every trajectory must start together")
         else:
@@ -175,6 +179,44 @@ class Rows:
         self.pending = tokens[-1]
         self.last_obs = torch.stack(tokens[:OBS_TOKENS], 1)
         return torch.stack(tokens, 1).numpy(), torch.stack(probs, 1).numpy()
+
+    def _first_block(self, tokens: torch.Tensor, cond: Conditioning) -> KVCache:
+        """A cache of the joining rows holding their first block. Rows that all start alike (one
+        request's trajectories from one state under one manual) are computed once, and kept: a
+        planner imagines again and again from the state under review, and a server's next calls
+        often start where its last ones did. The first block is 13 tokens, a decoder call that
+        cost 0.7 ms of the ~0.8 ms of admitting a call (measured)."""
+        n = len(tokens)
+        joining = self.model.new_cache(n)
+        key = self._start_key(tokens, cond) if self.max_first_blocks else None
+        if key is None:
+            self.model.hidden_states(tokens, cond, joining)
+            return joining
+        if key not in self.first_blocks:
+            one = self.model.new_cache(1)
+            self.model.hidden_states(tokens[:1], cond.index(torch.zeros(1, dtype=torch.long)), one)
+            self.first_blocks[key] = (one.k[:, :, :, : one.end].clone(), one.v[:, :, :, : one.end].clone())
+            if len(self.first_blocks) > self.max_first_blocks:
+                self.first_blocks.popitem(last=False)
+        self.first_blocks.move_to_end(key)
+        k, v = self.first_blocks[key]
+        width = k.shape[3]
+        joining.k[:, :, :, :width] = k
+        joining.v[:, :, :, :width] = v
+        joining.lengths = torch.full((n,), width, dtype=torch.long)
+        joining.end = width
+        return joining
+
+    @staticmethod
+    def _start_key(tokens: torch.Tensor, cond: Conditioning) -> tuple | None:
+        """What the first block's keys and values depend on, when every row has the same; else None."""
+        parts = [tokens]
+        for t in (cond.id_table, cond.memory, cond.memory_mask):
+            if t is not None:
+                parts.append(t)
+        if any(len(p) > 1 and not bool((p == p[:1]).all()) for p in parts):
+            return None
+        return tuple(p[0].numpy().tobytes() for p in parts)
 
     def keep(self, idx: torch.Tensor) -> None:
         """Keep only the rows at `idx` (the others' trajectories have ended)."""

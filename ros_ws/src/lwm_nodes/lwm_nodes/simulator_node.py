@@ -44,7 +44,8 @@ class SimulatorNode(JsonNode):
         self.json_subscription("/feedback/manual", "manual", on_feedback, LATCHED)
         self.json_subscription("/env/manual", "manual", self.on_env_manual, LATCHED)
         max_rows = int(self.declare_parameter("max_batch_trajectories", 256).value)
-        self.server = WorkerImagineServer(self.sim, max_rows, threads)
+        workers = int(self.declare_parameter("imagine_workers", 1).value)  # processes imagining one-shot calls
+        self.server = WorkerImagineServer(self.sim, max_rows, threads, workers)
         self.create_service(Json, "/lwm/imagine", self.on_imagine, callback_group=ReentrantCallbackGroup())
         self.publish_status(self.sim.status())
         self.get_logger().info(
