@@ -149,10 +149,13 @@ def rss_mb(pid: int) -> float:
     return math.nan
 
 
-def run_clients(n: int, calls: int, population: int = 0) -> tuple[list[float], int, float, list[int], int]:
-    """n client processes making `calls` calls each, started together; (latencies, failures,
-    wall-clock seconds of the whole load, batch sizes, trajectory steps imagined)."""
-    start_at = time.time() + 8.0  # every client has discovered the service by then
+def run_clients(
+    n: int, calls: int, population: int = 0, start_at: float | None = None
+) -> tuple[list[float], int, float, list[int], int]:
+    """n client processes making `calls` calls each, started together at `start_at` (default: in
+    8 s, when every client has discovered the service); (latencies, failures, wall-clock seconds
+    of the whole load, batch sizes, trajectory steps imagined)."""
+    start_at = start_at or time.time() + 8.0
     procs = [
         subprocess.Popen(
             [
@@ -177,8 +180,9 @@ def run_clients(n: int, calls: int, population: int = 0) -> tuple[list[float], i
     return lat, sum(r["failures"] for r in results), wall, batched, sum(r["steps"] for r in results)
 
 
-def probe_env(stop: threading.Event, out: list[float]) -> None:
-    """/env/reset from this process every 0.5 s while the load runs."""
+def probe_env(stop: threading.Event, out: list[float], start_at: float = 0.0) -> None:
+    """/env/reset from this process every 0.5 s while the load runs (from `start_at`: not while
+    the client processes start, which takes both cores for a few seconds)."""
     import rclpy
     from lwm_interfaces.srv import Json
     from lwm_nodes.common import ros_environment
@@ -190,6 +194,7 @@ def probe_env(stop: threading.Event, out: list[float]) -> None:
     spin = BackgroundSpin(node)
     client = node.create_client(Json, "/env/reset")
     client.wait_for_service(timeout_sec=60)
+    stop.wait(max(0.0, start_at - time.time()))
     while not stop.wait(0.5):
         t = time.perf_counter()
         res = client.call(Json.Request(request=json.dumps({"seed": 0})), timeout_sec=10)
@@ -211,9 +216,10 @@ def cmd_load(args: argparse.Namespace) -> int:
         lat1, fail1, wall1, _, steps1 = run_clients(1, args.baseline_calls, args.calls)
         probe: list[float] = []
         stop = threading.Event()
-        prober = threading.Thread(target=probe_env, args=(stop, probe))
+        start_at = time.time() + 8.0
+        prober = threading.Thread(target=probe_env, args=(stop, probe, start_at))
         prober.start()
-        latn, failn, walln, batched, stepsn = run_clients(args.clients, args.calls)
+        latn, failn, walln, batched, stepsn = run_clients(args.clients, args.calls, start_at=start_at)
         stop.set()
         prober.join()
     finally:
