@@ -31,23 +31,30 @@ def trajectories(answer: str) -> list[dict]:
     ]
 
 
-def test_concurrent_requests_share_batches_and_get_what_they_get_alone(sim):
-    alone = {i: sim.handle(json.loads(request(i))) for i in range(12)}
-    server = ImagineServer(sim)
-    answers: dict[int, str] = {}
-    gate = threading.Barrier(12)
+def concurrently(server, texts: dict) -> dict:
+    """Each request string served from a thread of its own, all released at once: {key: (answer, error)}."""
+    results: dict = {}
+    gate = threading.Barrier(len(texts))
 
-    def client(i: int) -> None:
+    def client(key, text: str) -> None:
         gate.wait()
-        answers[i], error = server.serve(request(i))
-        assert error is None
+        results[key] = server.serve(text)
 
-    threads = [threading.Thread(target=client, args=(i,)) for i in range(12)]
+    threads = [threading.Thread(target=client, args=item) for item in texts.items()]
     for t in threads:
         t.start()
     for t in threads:
         t.join(60)
+    return results
+
+
+def test_concurrent_requests_share_batches_and_get_what_they_get_alone(sim):
+    alone = {i: sim.handle(json.loads(request(i))) for i in range(12)}
+    server = ImagineServer(sim)
+    results = concurrently(server, {i: request(i) for i in range(12)})
     server.close()
+    assert all(error is None for _, error in results.values())
+    answers = {i: answer for i, (answer, _) in results.items()}
     assert sorted(answers) == list(range(12))
     for i, answer in answers.items():
         got = json.loads(answer)
@@ -60,20 +67,8 @@ def test_concurrent_requests_share_batches_and_get_what_they_get_alone(sim):
 
 def test_a_bad_request_in_a_batch_fails_alone(sim):
     server = ImagineServer(sim)
-    results: dict[str, tuple[str, Exception | None]] = {}
     bad = json.dumps({"version": 1, "observations": [OBS, OBS], "n": 3, "max_steps": 4})  # 2 starts, 3 trajectories
-    gate = threading.Barrier(4)
-
-    def client(name: str, text: str) -> None:
-        gate.wait()
-        results[name] = server.serve(text)
-
-    jobs = [("bad", bad)] + [(f"good{i}", request(i)) for i in range(3)]
-    threads = [threading.Thread(target=client, args=job) for job in jobs]
-    for t in threads:
-        t.start()
-    for t in threads:
-        t.join(60)
+    results = concurrently(server, {"bad": bad, **{f"good{i}": request(i) for i in range(3)}})
     server.close()
     answer, error = results["bad"]
     assert error is not None and not json.loads(answer)["ok"] and "one per trajectory" in json.loads(answer)["error"]
@@ -179,20 +174,9 @@ def test_the_worker_process_answers_as_the_thread_does_and_batches(sim, worker_s
     # The simulator node's server: the same answers as a call alone, while concurrent calls share
     # the worker process's steps.
     alone = {i: sim.handle(json.loads(request(i))) for i in range(8)}
-    answers: dict[int, str] = {}
-    gate = threading.Barrier(8)
-
-    def client(i: int) -> None:
-        gate.wait()
-        answers[i], error = worker_server.serve(request(i))
-        assert error is None
-
-    threads = [threading.Thread(target=client, args=(i,)) for i in range(8)]
-    for t in threads:
-        t.start()
-    for t in threads:
-        t.join(60)
-    assert sorted(answers) == list(range(8))
+    results = concurrently(worker_server, {i: request(i) for i in range(8)})
+    assert sorted(results) == list(range(8)) and all(error is None for _, error in results.values())
+    answers = {i: answer for i, (answer, _) in results.items()}
     for i, answer in answers.items():
         assert trajectories(answer) == trajectories(json.dumps(alone[i])), f"request {i} differs in the worker"
     assert max(json.loads(a)["batched"] for a in answers.values()) > 1

@@ -81,14 +81,22 @@ class ImagineServer:
         if self._closed.is_set():
             raise ShuttingDown("the simulator is shutting down")
         began = time.perf_counter()
-        job = _Job(request, self.sim.trajectory_count(request))
-        self._queue.put(job)
+        job, answerer = self._submit(request)
         while not job.done.wait(0.5):
-            if not self._worker.is_alive():  # it stopped after this job was queued
+            if not answerer.is_alive():  # it stopped after this job was submitted
                 raise ShuttingDown("the simulator is shutting down")
         if job.error is not None:
             raise job.error
-        return {**job.response, "seconds": round(time.perf_counter() - began, 4)}
+        return {**self._response(job), "seconds": round(time.perf_counter() - began, 4)}
+
+    def _submit(self, request: dict) -> tuple[_Job, threading.Thread]:
+        """Queue a one-shot request; returns its job and the thread that will finish it."""
+        job = _Job(request, self.sim.trajectory_count(request))
+        self._queue.put(job)
+        return job, self._worker
+
+    def _response(self, job: _Job) -> dict:
+        return job.response
 
     def close(self, timeout: float = 1.0) -> None:
         """Stop: the requests being imagined may finish for `timeout` seconds (a time limit of 32
@@ -275,29 +283,18 @@ class WorkerImagineServer(ImagineServer):
         """Worker processes started again after one died."""
         return sum(w.restarts for w in self.workers)
 
-    def handle(self, request: dict) -> dict:
-        if not self.sim.is_one_shot(request):
-            return self.sim.handle(request)
-        if self._closed.is_set():
-            raise ShuttingDown("the simulator is shutting down")
-        began = time.perf_counter()
+    def _submit(self, request: dict) -> tuple[_Job, threading.Thread]:
         track = self.sim.one_shot(request)  # a request that cannot be served fails here, alone
         job = _Job(request, track.size, track)
         with self._pick:
             worker = min(self.workers, key=lambda w: w.load)
             worker.submit(next(self._ids), job)
-        while not job.done.wait(0.5):
-            if not worker.receiver.is_alive():
-                raise ShuttingDown("the simulator is shutting down")
-        if job.error is not None:
-            raise job.error
+        return job, worker.receiver
+
+    def _response(self, job: _Job) -> dict:
         imagination, peak = job.response
         self.requests += 1
-        return {
-            **self.sim.response(imagination, track.info),
-            "batched": peak,
-            "seconds": round(time.perf_counter() - began, 4),
-        }
+        return {**self.sim.response(imagination, job.track.info), "batched": peak}
 
     def close(self, timeout: float = 1.0) -> None:
         """Stop: each worker answers what it is imagining for up to `timeout` seconds in all and
