@@ -68,8 +68,6 @@ def serve_batches(conn: Connection, checkpoint: str, max_rows: int, threads: int
                 message = conn.recv()
                 if message is STOP:
                     stopping = True
-                    while waiting:
-                        conn.send((waiting.popleft()[0], "the simulator is shutting down", 0))
                     break
                 try:
                     waiting.append(_track(message))
@@ -85,7 +83,7 @@ def serve_batches(conn: Connection, checkpoint: str, max_rows: int, threads: int
             if batch:
                 for track in batch.step():
                     conn.send((track.info["job"], track.result(), track.peak))
-    except (EOFError, OSError, BrokenPipeError):  # the server is gone
+    except (EOFError, OSError):  # the server is gone
         return
 
 
