@@ -191,7 +191,8 @@ def test_a_killed_worker_fails_its_calls_and_is_started_again(sim):
         long_call = json.dumps({"version": 1, "observation": OBS, "n": 256, "max_steps": 32, "seed": 1})
         caller = threading.Thread(target=lambda: results.append(server.serve(long_call)))
         caller.start()
-        time.sleep(0.4)  # the call is being imagined (it takes about 2 s)
+        while not server.workers[0].load:  # the call has been sent to the worker (it takes about 2 s)
+            time.sleep(0.01)
         first = server.workers[0].proc
         first.kill()
         caller.join(30)
@@ -207,3 +208,31 @@ def test_a_killed_worker_fails_its_calls_and_is_started_again(sim):
     assert server.workers[0].proc.poll() is not None  # closing ended the worker process
     text, error = server.serve(request(4))
     assert error is not None and "shutting down" in json.loads(text)["error"]
+
+
+def test_closing_the_worker_server_answers_every_call_within_its_deadline(sim):
+    # Five calls of 256 trajectories each (a batch's limit: each runs alone, about 1-2 s): the
+    # first is being imagined, the others wait. Closing with a 0.3 s deadline answers every call
+    # at once; the waiting ones (all, or all but one that the first left room for) are refused.
+    server = WorkerImagineServer(sim)
+    big = [json.dumps({"version": 1, "observation": OBS, "n": 256, "max_steps": 32, "seed": i}) for i in range(5)]
+    results: dict[int, tuple[str, Exception | None]] = {}
+
+    def call(i: int) -> threading.Thread:
+        thread = threading.Thread(target=lambda: results.__setitem__(i, server.serve(big[i])))
+        thread.start()
+        return thread
+
+    threads = [call(0)]
+    time.sleep(0.2)
+    threads += [call(i) for i in range(1, 5)]
+    time.sleep(0.2)
+    began = time.perf_counter()
+    server.close(timeout=0.3)
+    for t in threads:
+        t.join(10)
+    assert time.perf_counter() - began < 1.5 and sorted(results) == [0, 1, 2, 3, 4]
+    refused = [i for i, (text, error) in results.items() if error is not None and "shutting down" in text]
+    answered = [i for i, (text, error) in results.items() if error is None and json.loads(text)["ok"]]
+    assert len(refused) + len(answered) == 5 and len([i for i in refused if i > 0]) >= 3
+    assert server.workers[0].proc.poll() is not None
