@@ -13,10 +13,12 @@ import pytest
 import torch
 
 from lwm_models.data.dataset import generate_dataset
+from lwm_models.messenger.constants import DEFAULT_MAX_STEPS
 from lwm_models.text import DescriptionPools
 from lwm_models.world.batches import SplitTokens
 from lwm_models.world.checkpoint import load_checkpoint
-from lwm_models.world.evaluate import imagination_metrics, loss_by_prefix
+from lwm_models.world.evaluate import ImaginationScore, imagination_metrics, loss_by_prefix
+from lwm_models.world.imagine import Imagination
 from lwm_models.world.tokens import DUMMY_ACTION, FIRST_REWARD_LABEL
 from lwm_models.world.train import TrainArgs, evaluate_loss, train
 
@@ -168,6 +170,36 @@ def test_eval_metrics_and_prefix_curve(tiny_data):
     # per transition, each of the 3 entity channels counted
     assert 0 <= metrics.identity_change_rate <= 3 and 0 <= metrics.vanish_rate <= 3
     assert metrics.real_reward_steps >= 0
+
+
+def test_real_episodes_score_as_a_perfect_imagination(tiny_data):
+    # Table 2's checks applied to the game itself: every real reward and end has its entity in
+    # reach, every real reward and end is recalled, nothing changes identity, jumps or vanishes,
+    # no rule is broken. A check that a real transition can fail would blame the model for it.
+    data = SplitTokens(tiny_data, "newall-test")
+    real = [data.ds[e] for e in range(len(data))]
+    steps = DEFAULT_MAX_STEPS + 1
+    n = len(real)
+    im = Imagination(
+        np.zeros((n, steps, 4, 3), np.uint8),
+        np.zeros((n, steps), np.int64),
+        np.zeros((n, steps), np.float32),
+        np.zeros((n, steps), bool),
+        np.array([len(ep.observations) for ep in real]),
+        np.zeros((n, steps, 14), np.float32),
+    )
+    for i, ep in enumerate(real):
+        k = len(ep.observations)
+        im.observations[i, :k], im.actions[i, :k] = ep.observations, ep.actions
+        im.rewards[i, :k], im.dones[i, :k] = ep.rewards, ep.dones
+    im.actions[:, 0] = 0
+    score = ImaginationScore()
+    score.add(im, real)
+    m = score.metrics()
+    assert m.episodes == n and m.reward_steps == m.real_reward_steps > 0 and m.done_steps > 0
+    assert m.reward_precision == m.termination_precision == m.reward_recall == m.termination_recall == 1.0
+    assert m.delta_dist == 0 and m.reward_without_reach == 0
+    assert m.identity_change_rate == m.avatar_jump_rate == m.vanish_rate == m.rule_breaks_per_step == 0
 
 
 def load_checkpoint_or_new():

@@ -22,7 +22,7 @@ from ..messenger.constants import (
 from .base import WorldModel
 from .batches import SplitTokens
 from .constraints import StepRules, rule_breaks
-from .imagine import imagine
+from .imagine import Imagination, imagine
 from .tokens import BLOCK, OBS_TOKENS, SLOT_DONE, SLOT_KIND, SLOT_OBS, SLOT_REWARD
 from .train import evaluate_loss
 
@@ -162,28 +162,44 @@ def imagination_metrics(
     chosen = np.arange(len(data))
     if episodes is not None and episodes < len(chosen):
         chosen = np.linspace(0, len(chosen) - 1, episodes).round().astype(np.int64)
-    dist_err, dist_n = 0.0, 0
-    reward_ok = reward_n = done_ok = done_n = unreached = 0
-    real_rewards = recalled_rewards = real_dones = recalled_dones = 0
-    breaks = break_steps = 0
-    counts = dict.fromkeys(
-        ("transitions", "identity_changes", "vanished_without_reward", "avatar_moves", "avatar_jumps"), 0
-    )
+    score = ImaginationScore(max_steps)
     for lo in range(0, len(chosen), batch):
         idx = chosen[lo : lo + batch]
-        manual = data.manual_batch(idx)
         real = [ds[int(e)] for e in idx]
         firsts = np.stack([ep.observations[0] for ep in real])
         acts = np.zeros((len(idx), max_steps), dtype=np.int64)
         for i, ep in enumerate(real):
             acts[i, : len(ep.actions) - 1] = ep.actions[1:]
+        manual = data.manual_batch(idx)
         im = imagine(
             model, manual, firsts, len(idx), acts, seed=seed + lo, max_steps=max_steps, constrained=constrained
         )
+        score.add(im, real)
+    return score.metrics()
+
+
+class ImaginationScore:
+    """Table 2's counts over batches of imagined trajectories, each beside the real episode whose
+    actions it replayed. Real episodes scored as their own imagination get precision and recall 1
+    and no consistency breaks (tests/test_training.py): the checks hold for the game itself."""
+
+    def __init__(self, max_steps: int = DEFAULT_MAX_STEPS) -> None:
+        self.max_steps = max_steps
+        self.dist_err, self.dist_n = 0.0, 0
+        self.reward_ok = self.reward_n = self.done_ok = self.done_n = self.unreached = 0
+        self.real_rewards = self.recalled_rewards = self.real_dones = self.recalled_dones = 0
+        self.breaks = self.break_steps = self.episodes = 0
+        self.counts = dict.fromkeys(
+            ("transitions", "identity_changes", "vanished_without_reward", "avatar_moves", "avatar_jumps"), 0
+        )
+
+    def add(self, im: Imagination, real: list) -> None:
+        """Score imagined trajectories `im` (row i replayed the actions of `real[i]`, an Episode)."""
         for k, v in consistency_counts(im.observations, im.rewards, im.lengths).items():
-            counts[k] += v
-        slots, steps = rule_breaks(im.observations, im.actions, im.rewards, im.dones, im.lengths, max_steps)
-        breaks, break_steps = breaks + int(slots.sum()), break_steps + steps
+            self.counts[k] += v
+        slots, steps = rule_breaks(im.observations, im.actions, im.rewards, im.dones, im.lengths, self.max_steps)
+        self.breaks, self.break_steps = self.breaks + int(slots.sum()), self.break_steps + steps
+        self.episodes += len(real)
         for i, ep in enumerate(real):
             entities = [(IDENTITIES[e.identity], e.movement, e.role) for e in ep.game.entities]
             common = min(len(ep.observations), int(im.lengths[i]))
@@ -195,42 +211,47 @@ def imagination_metrics(
                     p_real, p_im = _positions(ep.observations[t], eid), _positions(im.observations[i, t], eid)
                     if p_real is None or p_im is None:
                         continue
-                    dist_err += abs(int(np.abs(a_im - p_im).sum()) - int(np.abs(a_real - p_real).sum()))
-                    dist_n += 1
+                    self.dist_err += abs(int(np.abs(a_im - p_im).sum()) - int(np.abs(a_real - p_real).sum()))
+                    self.dist_n += 1
             for t in range(1, common):
                 if ep.rewards[t] != 0:
-                    real_rewards += 1
-                    recalled_rewards += float(im.rewards[i, t]) == float(ep.rewards[t])
+                    self.real_rewards += 1
+                    self.recalled_rewards += float(im.rewards[i, t]) == float(ep.rewards[t])
             if ep.dones[-1] and len(ep.observations) - 1 < int(im.lengths[i]):
-                real_dones += 1
-                recalled_dones += bool(im.dones[i, len(ep.observations) - 1])
+                self.real_dones += 1
+                self.recalled_dones += bool(im.dones[i, len(ep.observations) - 1])
             by_role = {role: (eid, mov) for eid, mov, role in entities}
             for t in range(1, int(im.lengths[i])):
                 prev, action, r = im.observations[i, t - 1], int(im.actions[i, t]), float(im.rewards[i, t])
                 if r != 0:
                     roles = {-1.0: ("enemy", "goal"), 0.5: ("message",), 1.0: ("goal",)}.get(r, ())
-                    reward_n += 1
-                    reward_ok += any(_near(prev, action, *by_role[role]) for role in roles)
-                    unreached += not any(_near(prev, action, eid, mov) for eid, mov, _ in entities)
+                    self.reward_n += 1
+                    self.reward_ok += any(_near(prev, action, *by_role[role]) for role in roles)
+                    self.unreached += not any(_near(prev, action, eid, mov) for eid, mov, _ in entities)
                 if im.dones[i, t]:
-                    done_n += 1
-                    done_ok += t == max_steps or any(_near(prev, action, *by_role[role]) for role in ("enemy", "goal"))
-    return ImaginationMetrics(
-        delta_dist=dist_err / max(1, dist_n),
-        reward_precision=reward_ok / max(1, reward_n),
-        reward_recall=recalled_rewards / max(1, real_rewards),
-        termination_precision=done_ok / max(1, done_n),
-        termination_recall=recalled_dones / max(1, real_dones),
-        reward_without_reach=unreached / max(1, reward_n),
-        identity_change_rate=counts["identity_changes"] / max(1, counts["transitions"]),
-        avatar_jump_rate=counts["avatar_jumps"] / max(1, counts["avatar_moves"]),
-        vanish_rate=counts["vanished_without_reward"] / max(1, counts["transitions"]),
-        rule_breaks_per_step=breaks / max(1, break_steps),
-        reward_steps=reward_n,
-        real_reward_steps=real_rewards,
-        done_steps=done_n,
-        episodes=len(chosen),
-    )
+                    self.done_n += 1
+                    self.done_ok += t == self.max_steps or any(
+                        _near(prev, action, *by_role[role]) for role in ("enemy", "goal")
+                    )
+
+    def metrics(self) -> ImaginationMetrics:
+        counts = self.counts
+        return ImaginationMetrics(
+            delta_dist=self.dist_err / max(1, self.dist_n),
+            reward_precision=self.reward_ok / max(1, self.reward_n),
+            reward_recall=self.recalled_rewards / max(1, self.real_rewards),
+            termination_precision=self.done_ok / max(1, self.done_n),
+            termination_recall=self.recalled_dones / max(1, self.real_dones),
+            reward_without_reach=self.unreached / max(1, self.reward_n),
+            identity_change_rate=counts["identity_changes"] / max(1, counts["transitions"]),
+            avatar_jump_rate=counts["avatar_jumps"] / max(1, counts["avatar_moves"]),
+            vanish_rate=counts["vanished_without_reward"] / max(1, counts["transitions"]),
+            rule_breaks_per_step=self.breaks / max(1, self.break_steps),
+            reward_steps=self.reward_n,
+            real_reward_steps=self.real_rewards,
+            done_steps=self.done_n,
+            episodes=self.episodes,
+        )
 
 
 IMPOSSIBLE_GROUPS = {"identity": (0, 3, 6, 9), "position": (1, 2, 4, 5, 7, 8, 10, 11), "reward": (12,), "done": (13,)}
@@ -299,4 +320,4 @@ def evaluate_model(
     return results
 
 
-__all__ = ["TEST_SPLITS", "evaluate_model", "imagination_metrics", "loss_by_prefix", "OBS_TOKENS"]
+__all__ = ["TEST_SPLITS", "ImaginationScore", "evaluate_model", "imagination_metrics", "loss_by_prefix", "OBS_TOKENS"]
