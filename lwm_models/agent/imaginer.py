@@ -191,9 +191,7 @@ class LocalImaginer:
     manual_version: int = 0
     constrained: bool = False
 
-    def rollout(
-        self, starts, policy, n=None, max_steps=32, seed=0, temperature=1.0, constrained=None
-    ) -> Imagination:
+    def rollout(self, starts, policy, n=None, max_steps=32, seed=0, temperature=1.0, constrained=None) -> Imagination:
         starts = np.asarray(starts, dtype=np.uint8)
         n = n or (1 if starts.ndim == 2 else len(starts))
         return imagine(
