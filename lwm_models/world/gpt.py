@@ -123,16 +123,10 @@ class KVCache:
         """Keep only the sequences at `index` (e.g. drop finished trajectories), moved left so that
         the longest starts at column 0 again."""
         self.lengths = self.lengths[index]
-        first = self.end - int(self.lengths.max()) if len(self.lengths) else self.end
-        if first > 0:
-            self.k = _shifted(self.k[:, index], -first)
-            self.v = _shifted(self.v[:, index], -first)
-            self.end -= first
-        else:
-            self.k = self.k[:, index]
-            self.v = self.v[:, index]
-        if not len(self.lengths):
-            self.end = 0
+        first = self.end - int(self.lengths.max()) if len(self.lengths) else self.end  # none left: end 0
+        self.k = _shifted(self.k[:, index], -first)
+        self.v = _shifted(self.v[:, index], -first)
+        self.end -= first
         if self.memory_kv is not None:
             self.memory_kv = [(k[index], v[index]) for k, v in self.memory_kv]
         self._mask_starts()
@@ -140,10 +134,9 @@ class KVCache:
     def extend(self, other: KVCache) -> None:
         """Append the sequences of another cache of the same sizes (new trajectories joining),
         right-aligned with these."""
-        end = max(self.end, other.end) if len(self) else other.end
-        ours, theirs = self.end if len(self) else end, other.end
-        self.k = torch.cat([_shifted(self.k, end - ours), _shifted(other.k, end - theirs)], dim=1)
-        self.v = torch.cat([_shifted(self.v, end - ours), _shifted(other.v, end - theirs)], dim=1)
+        end = max(self.end, other.end)  # an empty cache's end is 0 (`select` resets it)
+        self.k = torch.cat([_shifted(self.k, end - self.end), _shifted(other.k, end - other.end)], dim=1)
+        self.v = torch.cat([_shifted(self.v, end - self.end), _shifted(other.v, end - other.end)], dim=1)
         self.lengths = torch.cat([self.lengths, other.lengths])
         self.end = end
         self.memory_kv = None  # recomputed from the joined conditioning at the next call
