@@ -111,6 +111,44 @@ def test_kv_cache_matches_full_recompute(kind):
     torch.testing.assert_close(torch.cat(parts, 1), full, rtol=1e-4, atol=1e-5)
 
 
+def test_kv_cache_rows_join_and_leave_at_their_own_lengths():
+    # Sequences that started at different times share one cache (extend), one leaves (select),
+    # and each goes on as it would in a cache of its own. The columns past the end are left
+    # unset by extend and select: poisoned with NaN here, they must never be read.
+    torch.manual_seed(0)
+    model = build_model("emma", PRESETS["tiny"]).eval()
+    cond = model.condition(fake_manual(3))
+    rows = [cond.index(torch.tensor([i])) for i in range(3)]
+    tokens = torch.randint(0, 2, (3, 4 * BLOCK))
+    starts = [2 * BLOCK, BLOCK, 3 * BLOCK]  # tokens each row has fed before they share a cache
+
+    def alone(i: int, upto: int) -> torch.Tensor:
+        return model.hidden_states(tokens[i : i + 1, :upto], rows[i])[:, -1]
+
+    caches = []
+    for i, n in enumerate(starts):
+        caches.append(model.new_cache(1))
+        model.hidden_states(tokens[i : i + 1, :n], rows[i], caches[-1])
+    shared = caches[0]
+    shared.extend(caches[1])
+    shared.extend(caches[2])
+    shared.k[:, :, :, shared.end :] = float("nan")
+    shared.v[:, :, :, shared.end :] = float("nan")
+    both = type(cond).cat(rows)
+    new = torch.stack([tokens[i, n] for i, n in enumerate(starts)])[:, None]
+    h = model.hidden_states(new, both, shared)[:, -1]
+    for i, n in enumerate(starts):
+        torch.testing.assert_close(h[i : i + 1], alone(i, n + 1), rtol=1e-4, atol=1e-5)
+    shared.select(torch.tensor([0, 1]))  # the longest leaves: the others move left
+    assert shared.end == starts[0] + 1
+    shared.k[:, :, :, shared.end :] = float("nan")
+    shared.v[:, :, :, shared.end :] = float("nan")
+    new = torch.stack([tokens[i, n + 1] for i, n in enumerate(starts[:2])])[:, None]
+    h = model.hidden_states(new, type(cond).cat(rows[:2]), shared)[:, -1]
+    for i, n in enumerate(starts[:2]):
+        torch.testing.assert_close(h[i : i + 1], alone(i, n + 2), rtol=1e-4, atol=1e-5)
+
+
 def test_imagination_with_and_without_cache_agree(episodes):
     torch.manual_seed(0)
     model = build_model("emma", PRESETS["tiny"]).eval()
