@@ -123,14 +123,16 @@ class System:
                 self.ready.set()
 
     def node_pids(self) -> dict[str, int]:
-        """PID of each node process (the launcher's children), by node module."""
-        out = subprocess.run(["pgrep", "-P", str(self.proc.pid), "-a"], capture_output=True, text=True).stdout
+        """PID of each node process (the launcher's children), by node module, and of the
+        simulator's batch worker processes (its children: "worker", "worker 2", ...)."""
         pids = {}
-        for line in out.splitlines():
-            pid, _, cmd = line.partition(" ")
+        for pid, cmd in _children(self.proc.pid):
             for name in ("env_node", "simulator_node", "planner_node", "human_node"):
                 if f"lwm_nodes.{name}" in cmd:
-                    pids[name.removesuffix("_node")] = int(pid)
+                    pids[name.removesuffix("_node")] = pid
+        if "simulator" in pids:
+            workers = [pid for pid, cmd in _children(pids["simulator"]) if "lwm_models.world.batch_worker" in cmd]
+            pids.update({"worker" if i == 0 else f"worker {i + 1}": pid for i, pid in enumerate(sorted(workers))})
         return pids
 
     def stop(self) -> int:
@@ -140,6 +142,11 @@ class System:
         except subprocess.TimeoutExpired:
             self.proc.kill()
             return self.proc.wait()
+
+
+def _children(pid: int) -> list[tuple[int, str]]:
+    out = subprocess.run(["pgrep", "-P", str(pid), "-a"], capture_output=True, text=True).stdout
+    return [(int(p), cmd) for p, _, cmd in (line.partition(" ") for line in out.splitlines())]
 
 
 def rss_mb(pid: int) -> float:
