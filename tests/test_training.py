@@ -200,6 +200,8 @@ def test_real_episodes_score_as_a_perfect_imagination(tiny_data):
     assert m.reward_precision == m.termination_precision == m.reward_recall == m.termination_recall == 1.0
     assert m.delta_dist == 0 and m.reward_without_reach == 0
     assert m.identity_change_rate == m.avatar_jump_rate == m.vanish_rate == m.rule_breaks_per_step == 0
+    assert m.identity_changes == m.avatar_jumps == 0
+    assert m.transitions == sum(len(ep.observations) - 1 for ep in real) and m.avatar_moves > 0
 
 
 def load_checkpoint_or_new():

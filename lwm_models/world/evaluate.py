@@ -123,7 +123,9 @@ class ImaginationMetrics:
     identity_change_rate: entity channels changing identity per imagined transition (each of 3
         channels counted); avatar_jump_rate: avatar moves longer than one cell per avatar move;
         vanish_rate: entities vanishing without a reward per transition. Real episodes score 0 on
-        these three.
+        these three. transitions, identity_changes, avatar_moves, avatar_jumps: their counts, so
+        that a rate comes with what it was measured on (a rate of 0.1% over 18,000 transitions
+        is 18 events: a difference of a few is noise).
     rule_breaks_per_step: imagined tokens per step that break one of the game's rules
         (world/constraints.py; 0 for real episodes and under constraints).
     """
@@ -142,6 +144,10 @@ class ImaginationMetrics:
     real_reward_steps: int
     done_steps: int
     episodes: int
+    transitions: int = 0
+    identity_changes: int = 0
+    avatar_moves: int = 0
+    avatar_jumps: int = 0
 
     def as_dict(self) -> dict:
         return dict(self.__dict__)
@@ -251,6 +257,10 @@ class ImaginationScore:
             real_reward_steps=self.real_rewards,
             done_steps=self.done_n,
             episodes=self.episodes,
+            transitions=counts["transitions"],
+            identity_changes=counts["identity_changes"],
+            avatar_moves=counts["avatar_moves"],
+            avatar_jumps=counts["avatar_jumps"],
         )
 
 
