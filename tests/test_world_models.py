@@ -113,8 +113,8 @@ def test_kv_cache_matches_full_recompute(kind):
 
 def test_kv_cache_rows_join_and_leave_at_their_own_lengths():
     # Sequences that started at different times share one cache (extend), one leaves (select),
-    # and each goes on as it would in a cache of its own. The columns past the end are left
-    # unset by extend and select: poisoned with NaN here, they must never be read.
+    # and each goes on as it would in a cache of its own. The columns past the end hold nothing
+    # yet: poisoned with NaN here, they must never be read.
     torch.manual_seed(0)
     model = build_model("emma", PRESETS["tiny"]).eval()
     cond = model.condition(fake_manual(3))
