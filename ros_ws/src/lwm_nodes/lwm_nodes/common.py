@@ -3,6 +3,7 @@ spin loop that shuts down cleanly on SIGINT/SIGTERM."""
 
 from __future__ import annotations
 
+import ctypes
 import faulthandler
 import os
 import signal
@@ -177,12 +178,14 @@ STOP_DEADLINE_S = 1.5  # teardown may take this long; the process ends by 2 s af
 
 
 def _exit_by_deadline(code: int, marks: list[tuple[str, float]]) -> None:
-    """End the process STOP_DEADLINE_S after teardown began, however far it got. Teardown inside
-    rclpy/Fast DDS stalled now and then (a node not gone 10 s after SIGTERM, issue 12), and
-    nothing left to do there matters once the ledger has committed. Two guards: a Python timer
-    for a stall that releases the GIL, which exits with the run's code and names the phase that
-    stalled; faulthandler's C thread for one that holds the GIL, which needs no Python to run,
-    prints every thread's stack to the log (so the next stall says where it was) and exits 1."""
+    """End the process STOP_DEADLINE_S after teardown began, however far it got, with the run's
+    exit code. Teardown inside rclpy/Fast DDS stalled now and then (a node not gone 10 s after
+    SIGTERM, issue 12; once, in CI, rclpy's destroy_node holding the GIL), and nothing left to do
+    there matters once the ledger has committed. Three guards: a Python timer for a stall that
+    releases the GIL, which names the phase that stalled; for one that holds it, faulthandler's
+    C thread prints every thread's stack to the log (so the next stall says where it was), and a
+    C timer then calls _exit with the run's code, which needs no Python to run. Where that timer
+    cannot be armed (not glibc), faulthandler ends the process itself, with exit code 1."""
 
     def expire() -> None:
         done = marks[-1][0] or "start"
@@ -192,7 +195,48 @@ def _exit_by_deadline(code: int, marks: list[tuple[str, float]]) -> None:
     timer = threading.Timer(STOP_DEADLINE_S, expire)
     timer.daemon = True
     timer.start()
-    faulthandler.dump_traceback_later(STOP_DEADLINE_S + 0.3, exit=True)
+    armed = exit_timer(STOP_DEADLINE_S + 0.4, code)
+    faulthandler.dump_traceback_later(STOP_DEADLINE_S + 0.3, exit=not armed)
+
+
+class _SigEvent(ctypes.Structure):
+    """glibc's struct sigevent (64 bytes) as SIGEV_THREAD uses it: the value passed to the
+    function, the signal number, the notification kind, the function and its thread attributes."""
+
+    _fields_ = [
+        ("value", ctypes.c_void_p),
+        ("signo", ctypes.c_int),
+        ("notify", ctypes.c_int),
+        ("function", ctypes.c_void_p),
+        ("attributes", ctypes.c_void_p),
+        ("_pad", ctypes.c_byte * 32),
+    ]
+
+
+class _ITimerSpec(ctypes.Structure):
+    _fields_ = [("interval", ctypes.c_long * 2), ("value", ctypes.c_long * 2)]
+
+
+def exit_timer(seconds: float, code: int) -> bool:
+    """Arm a POSIX timer that calls libc's _exit(code) from a thread of its own after `seconds`,
+    without the GIL: glibc runs a SIGEV_THREAD timer's function in a new C thread and passes it
+    the sigevent's value, which on the 64-bit ABIs lands where _exit reads its int. Returns False
+    (nothing armed) where that cannot be done."""
+    if not sys.platform.startswith("linux") or ctypes.sizeof(ctypes.c_void_p) != 8:
+        return False
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        create, settime, exit_now = libc.timer_create, libc.timer_settime, libc._exit
+    except (OSError, AttributeError):
+        return False
+    sigev_thread = 2
+    event = _SigEvent(value=code & 0xFF, notify=sigev_thread, function=ctypes.cast(exit_now, ctypes.c_void_p).value)
+    timer_id = ctypes.c_void_p()
+    if create(time.CLOCK_MONOTONIC, ctypes.byref(event), ctypes.byref(timer_id)) != 0:
+        return False
+    whole = int(seconds)
+    spec = _ITimerSpec(value=(ctypes.c_long * 2)(whole, int((seconds - whole) * 1e9)))
+    return settime(timer_id, 0, ctypes.byref(spec), None) == 0
 
 
 def json_caller(node: Node, client, kind: str | None, timeout: float) -> Callable[[dict], dict]:
