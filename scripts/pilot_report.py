@@ -68,11 +68,31 @@ def at_minutes(dev: list[dict], minutes: float) -> dict | None:
 
 
 def status(run: Path) -> str:
+    """done, paused (a chunk ended with budget and steps left) or running?, from the run's own
+    files: the saved state's step and CPU clock against the step count and CPU budget of its
+    command (cmd.txt, written by scripts/long_run.sh)."""
     if run.is_file():
         return "(file)"
     if (run / "DONE").is_file():
         return "done"
-    return "running?" if (run / "metrics.jsonl").is_file() else "not started"
+    if not (run / "metrics.jsonl").is_file():
+        return "not started"
+    state, cmd = run / "last" / "train_state.json", run / "cmd.txt"
+    if not (state.is_file() and cmd.is_file()):
+        return "running?"
+    saved = json.loads(state.read_text())
+    args = cmd.read_text().split()
+
+    def arg(flag: str) -> float | None:
+        return float(args[args.index(flag) + 1]) if flag in args[:-1] else None
+
+    steps, budget = arg("--steps"), arg("--cpu-budget-minutes")
+    if (steps is not None and saved["step"] >= steps) or (
+        budget is not None and saved.get("clock", {}).get("cpu_s", 0.0) >= 60 * budget
+    ):
+        return "done"
+    last_logged = max((e.get("step", 0) for e in load(run / "metrics.jsonl")[0]), default=0)
+    return "paused" if saved["step"] >= last_logged else "training?"
 
 
 def fmt(x: float | None, digits: int = 4) -> str:
