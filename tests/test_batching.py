@@ -235,4 +235,4 @@ def test_closing_the_worker_server_answers_every_call_within_its_deadline(sim):
     refused = [i for i, (text, error) in results.items() if error is not None and "shutting down" in text]
     answered = [i for i, (text, error) in results.items() if error is None and json.loads(text)["ok"]]
     assert len(refused) + len(answered) == 5 and len([i for i in refused if i > 0]) >= 3
-    assert server.workers[0].proc.poll() is not None
+    assert server.workers[0].proc.wait(5) is not None  # ended: answered and stopped, or killed

@@ -200,7 +200,12 @@ class _Worker:
             self.proc.wait(max(timeout, 0.0))
         except subprocess.TimeoutExpired:
             self.proc.kill()
-            self.proc.wait(0.2)
+            try:
+                self.proc.wait(1.0)
+            except subprocess.TimeoutExpired:
+                # SIGKILL cannot be refused, but on a loaded machine the kernel may take longer to
+                # tear down a process holding torch; closing must not fail for it (Popen reaps it).
+                pass
 
     def fail_all(self, error: Exception) -> None:
         with self.lock:
