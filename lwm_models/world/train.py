@@ -15,6 +15,7 @@ samples its own batches and rank 0 evaluates and writes.
 
 from __future__ import annotations
 
+import gc
 import json
 import math
 import os
@@ -388,5 +389,10 @@ def train(args: TrainArgs, log=print) -> dict:
         bar.close()
     if distributed:
         dist.barrier()
+        # DDP's reducer keeps the process group alive; drop it while the interpreter is whole so
+        # that gloo's threads are not torn down during interpreter finalization (a rank aborted
+        # once at exit with "terminate called without an active exception").
+        del net
+        gc.collect()
         dist.destroy_process_group()
     return {"step": step, "best_dev": best, "stopped": stop_reason, "out": str(out), **elapsed()}
