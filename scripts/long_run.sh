@@ -2,7 +2,7 @@
 # One chunk of a long world-model run (issue 10), started again each session until its CPU budget
 # is spent: the same command resumes exactly from RUN/last (`lwm train`, see README "Long runs").
 #
-#   scripts/long_run.sh KIND [MAX_MINUTES]     KIND: emma observational standard gpthard
+#   scripts/long_run.sh KIND [MAX_MINUTES]     KIND: emma observational standard gpthard oracle
 #
 # The recipe is the pilot's winner (results/pilot_partial.txt: lr 1e-3 beat 5e-4 at equal CPU
 # time), for every kind alike so that their figures compare: small preset, lr 1e-3, warm-up 300,
@@ -24,8 +24,8 @@ DATA=${DATA:-data/human}
 kind=${1:?usage: scripts/long_run.sh KIND [MAX_MINUTES]}
 minutes=${2:-145}
 case "$kind" in
-    emma | observational | standard | gpthard) ;;
-    *) echo "long_run: unknown kind $kind (emma observational standard gpthard)" >&2; exit 2 ;;
+    emma | observational | standard | gpthard | oracle) ;;
+    *) echo "long_run: unknown kind $kind (emma observational standard gpthard oracle)" >&2; exit 2 ;;
 esac
 scripts/setup_venv.sh
 if [ ! -f "$DATA/index.json" ]; then
