@@ -28,8 +28,11 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from lwm_nodes import domains  # noqa: E402
+
 from lwm_models.data.splits import load_split  # noqa: E402
 from lwm_models.ledger import Ledger  # noqa: E402
+from lwm_models.stats import mean_interval  # noqa: E402
 from lwm_models.world.shipped import SHIPPED  # noqa: E402
 
 TEXTS = ROOT.parent / "shared" / "data" / "messenger-texts"
@@ -48,7 +51,11 @@ def run_game(index: int, seed: int, args, work: Path) -> dict:
     cmd += ["--constrained-learning"] if args.constrained_learning else []
     if args.iterations:
         cmd += ["--iterations", str(args.iterations)]
-    env = {**os.environ, "ROS_DOMAIN_ID": str(args.domain), "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
+    env = {
+        **os.environ,
+        "ROS_DOMAIN_ID": str(args.domain or domains.claim()),
+        "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST",
+    }
     began = time.monotonic()
     proc = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=args.timeout)
     wall = time.monotonic() - began
@@ -120,7 +127,9 @@ def main() -> int:
     p.add_argument("--records", type=Path, default=ROOT / "results" / "table3_records.jsonl")
     p.add_argument("--out", type=Path, default=None, help="JSONL of per-game results (appended)")
     p.add_argument("--logs", type=Path, default=None, help="keep each game's node logs and ledger here")
-    p.add_argument("--domain", type=int, default=77, help="ROS_DOMAIN_ID of the benchmark's systems")
+    p.add_argument(
+        "--domain", type=int, default=0, help="ROS_DOMAIN_ID of the benchmark's systems (0: one no other run holds)"
+    )
     p.add_argument("--timeout", type=float, default=900.0, help="seconds per game")
     args = p.parse_args()
     n = len(load_split(args.split))
@@ -135,9 +144,8 @@ def main() -> int:
                 with args.out.open("a") as f:
                     f.write(json.dumps(row) + "\n")
     r = np.array([x["real_return"] for x in rows])
-    half = 1.96 * r.std(ddof=1) / np.sqrt(len(r)) if len(r) > 1 else 0.0
-    lo, hi = r.mean() - half, r.mean() + half
-    print(f"\nreal return over {len(r)} games: {r.mean():+.2f} (95% interval {lo:+.2f}..{hi:+.2f})")
+    _, lo, hi = mean_interval(r)
+    print(f"\nreal return over {len(r)} games: {r.mean():+.2f} (95% t interval {lo:+.2f}..{hi:+.2f})")
     print("outcomes:", {o: sum(x["outcome"] == o for x in rows) for o in ("won", "died", "time_limit", "aborted")})
     print(f"approved plans whose shown trajectory died: {sum(x['approved_plan_died'] for x in rows)}")
     kinds = sorted({k for x in rows for k, _ in x["revise"]})

@@ -24,7 +24,10 @@ import time
 import numpy as np
 import torch
 
-os.environ.setdefault("ROS_DOMAIN_ID", str(1 + os.getpid() % 100))
+if "ROS_DOMAIN_ID" not in os.environ:  # one no other run on this machine holds
+    from lwm_nodes import domains
+
+    os.environ["ROS_DOMAIN_ID"] = str(domains.claim())
 os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
 
 import rclpy  # noqa: E402

@@ -27,7 +27,8 @@ repeats, one decision per plan and decision, one label answer per request, one r
 shutdown: SIGTERM to the launcher while N clients keep calling /lwm/imagine (and a scripted
 review is under way): each node's exit, timed by the launcher. Target: every node within 2 s.
 
-Each part starts its own system with a fresh ROS_DOMAIN_ID and stops it at the end.
+Each part starts its own system, in a ROS domain no other run on this machine holds, and stops it
+at the end.
 """
 
 from __future__ import annotations
@@ -47,7 +48,10 @@ from pathlib import Path
 
 import numpy as np
 
-os.environ.setdefault("ROS_DOMAIN_ID", str(100 + os.getpid() % 100))
+if "ROS_DOMAIN_ID" not in os.environ:  # one no other run on this machine holds
+    from lwm_nodes import domains
+
+    os.environ["ROS_DOMAIN_ID"] = str(domains.claim())
 os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -8,13 +8,13 @@ review page reads it too, read-only (the planner is its one writer).
 from __future__ import annotations
 
 import json
-import os
 import sqlite3
 import time
 from pathlib import Path
 from urllib.parse import quote
 
-DEFAULT_LEDGER = Path(os.environ.get("LWM_LEDGER", "logs/ledger.sqlite"))
+from .run_dirs import DEFAULT_LEDGER
+
 KINDS = ("plan", "feedback", "manual", "report", "label_request", "labels", "policy")
 
 

@@ -102,3 +102,103 @@ def dump(kind: str, payload: dict) -> str:
     """Validate and encode a payload (fills in the version when missing)."""
     payload = {"version": version(kind), **payload}
     return json.dumps(validate(kind, payload), separators=(",", ":"))
+
+
+def msg_id_of(text: str) -> str | None:
+    """The sender's msg_id of a payload, read before (and whether or not) it validates, so that
+    a refusal can be answered to its sender; None when there is none to read."""
+    try:
+        value = json.loads(text).get("msg_id")
+    except (ValueError, TypeError, AttributeError, RecursionError):
+        return None
+    return value if isinstance(value, str) and 0 < len(value) <= 64 else None
+
+
+KIND_NAMES = {
+    "review_feedback": "the answer to the plan was refused",
+    "labels": "the labels were refused",
+    "manual": "the manual was refused",
+}
+TYPE_NAMES = {
+    "integer": "a whole number",
+    "array": "a list",
+    "string": "text",
+    "object": "a JSON object",
+    "boolean": "true or false",
+    "number": "a number",
+}
+FIELD_NAMES = {
+    "plan_id": "the plan number",
+    "review_id": "the review",
+    "decision": "the decision",
+    "descriptions": "the manual",
+    "corrections": "the corrections",
+    "states": "the labelled states",
+    "actions": "the actions",
+    "rounds": "the number of rounds",
+    "request_id": "the label request",
+    "signature": "the signature",
+    "reviewer": "the reviewer's name",
+    "msg_id": "the message id",
+    "source": "the manual's source",
+}
+# A schema's complaint, as a person would say it: (pattern, reworded). \1 etc. are the pattern's groups.
+PLAIN = [
+    (r"^descriptions: must contain at least (\d+) items$", r"the manual needs \1 descriptions, one per entity"),
+    (r"^descriptions: must contain less than or equal to (\d+) items$", r"the manual takes \1 descriptions, no more"),
+    (r"^descriptions/(\d+): must match pattern .*$", "description {n1} is empty"),
+    (
+        r"^descriptions/(\d+): must be shorter than or equal to (\d+) characters$",
+        r"description {n1} is over \2 characters",
+    ),
+    (
+        r"^corrections/(\d+)/action: must be (?:smaller|bigger) than or equal to \d+$",
+        "correction {n1}: an action is 0 up, 1 down, 2 left, 3 right or 4 stay",
+    ),
+    (r"^corrections/(\d+)/step: must be bigger than or equal to 1$", "correction {n1}: steps are counted from 1"),
+    (
+        r"^actions/(\d+): must be (?:smaller|bigger) than or equal to \d+$",
+        "label {n1}: an action is 0 up, 1 down, 2 left, 3 right or 4 stay",
+    ),
+    (r"^\(top level\): must contain \['(\w+)'\] properties$", r"'\1' is missing"),
+    (r"^\(top level\): must not contain \{'(\w+)'\} properties$", r"'\1' is not something this message can carry"),
+    (r"^\(top level\): must be object$", "it is not a JSON object"),
+    (
+        r"^version: must be same as const definition: (\d+)$",
+        r"it is written for another version of the system (expected version \1)",
+    ),
+    (r"^decision: must be one of \[(.*)\]$", r"the decision must be one of \1"),
+    (r"^(\w+): must be bigger than or equal to (\S+)$", r"{field1} must be at least \2"),
+    (r"^(\w+): must be smaller than or equal to (\S+)$", r"{field1} must be at most \2"),
+    (r"^(\w+): must be (integer|array|string|object|boolean|number)$", "{field1} must be {type2}"),
+    (r"^(\w+): must match pattern .*$", "{field1} is empty or has characters it cannot have"),
+    (r"^not JSON: .*$", "it is not JSON (check the quotes and brackets)"),
+]
+
+
+def plain_reason(exc: BaseException) -> str:
+    """Why a payload was refused, in words a person at the page or the terminal understands: a
+    schema's complaint is reworded (PLAIN), any other refusal keeps its own message, which the
+    nodes already write for people."""
+    import re
+
+    text = str(exc)
+    if not isinstance(exc, MessageError):
+        if isinstance(exc, (LwmError, ValueError)):  # the system's own refusals are written for people
+            return text
+        return f"it could not be taken ({type(exc).__name__}: {text})"
+    kind, _, rest = text.partition(": ")
+    what = KIND_NAMES.get(kind, f"the {kind.replace('_', ' ')} was refused")
+    for pattern, reworded in PLAIN:
+        m = re.match(pattern, rest)
+        if m:
+            groups = m.groups()
+            fill = {}
+            for i, g in enumerate(groups, 1):
+                if g is not None and g.isdigit():
+                    fill[f"n{i}"] = int(g) + 1  # people count from 1
+                fill[f"field{i}"] = FIELD_NAMES.get(g, g) if g is not None else ""
+                fill[f"type{i}"] = TYPE_NAMES.get(g, g) if g is not None else ""
+            said = m.expand(reworded).format(**fill)
+            return f"{what}: {said}"
+    return f"{what}: {rest}"

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import json
 import os
-import random
 import shutil
 import signal
 import subprocess
@@ -21,6 +20,7 @@ from pathlib import Path
 
 import pytest
 from game_fixtures import MANUAL
+from lwm_nodes import domains
 
 ROOT = Path(__file__).resolve().parent.parent
 PYTHON = sys.executable
@@ -92,7 +92,7 @@ def test_the_review_loop_completes_across_two_hosts(two_hosts, tmp_path):
     a, b = two_hosts
     env = {
         **os.environ,
-        "ROS_DOMAIN_ID": str(random.randint(1, 100)),
+        "ROS_DOMAIN_ID": str(domains.claim()),
         "ROS_AUTOMATIC_DISCOVERY_RANGE": "SUBNET",
         "FASTDDS_BUILTIN_TRANSPORTS": "UDPv4",
         "PYTHONUNBUFFERED": "1",

@@ -11,7 +11,7 @@ import time
 import pytest
 from game_fixtures import MANUAL, OBS, shipped_simulator
 
-from lwm_models.world.batching import ImagineServer, WorkerImagineServer
+from lwm_models.world.batching import ImagineServer, ShuttingDown, WorkerImagineServer
 from lwm_models.world.continuous import ContinuousBatch, run_alone
 
 
@@ -212,8 +212,9 @@ def test_a_killed_worker_fails_its_calls_and_is_started_again(sim):
 
 def test_closing_the_worker_server_answers_every_call_within_its_deadline(sim):
     # Five calls of 256 trajectories each (a batch's limit: each runs alone, about 1-2 s): the
-    # first is being imagined, the others wait. Closing with a 0.3 s deadline answers every call
-    # at once; the waiting ones (all, or all but one that the first left room for) are refused.
+    # first is being imagined, the others wait in the worker. Closing with a 0.3 s deadline answers
+    # every call at once; the waiting ones (all, or all but one that the first left room for) are
+    # refused. The test waits for the calls to reach the worker (an event), not for a time.
     server = WorkerImagineServer(sim)
     big = [json.dumps({"version": 1, "observation": OBS, "n": 256, "max_steps": 32, "seed": i}) for i in range(5)]
     results: dict[int, tuple[str, Exception | None]] = {}
@@ -223,16 +224,40 @@ def test_closing_the_worker_server_answers_every_call_within_its_deadline(sim):
         thread.start()
         return thread
 
+    def in_worker() -> int:
+        with server.workers[0].lock:
+            return len(server.workers[0].jobs)
+
     threads = [call(0)]
-    time.sleep(0.2)
+    assert wait_until(lambda: in_worker() == 1)
     threads += [call(i) for i in range(1, 5)]
-    time.sleep(0.2)
+    assert wait_until(lambda: in_worker() == 5)
     began = time.perf_counter()
     server.close(timeout=0.3)
     for t in threads:
         t.join(10)
-    assert time.perf_counter() - began < 1.5 and sorted(results) == [0, 1, 2, 3, 4]
+    took = time.perf_counter() - began
+    # The bound: 0.3 s of grace, then a kill; a ROS node has 2 s in all to stop. Measured under a
+    # CPU burner on one core of this 2-core machine: at most 0.5 s in 40 runs (scripts/stress_ci.sh).
+    assert took < 1.5 and sorted(results) == [0, 1, 2, 3, 4], (took, sorted(results))
     refused = [i for i, (text, error) in results.items() if error is not None and "shutting down" in text]
     answered = [i for i, (text, error) in results.items() if error is None and json.loads(text)["ok"]]
-    assert len(refused) + len(answered) == 5 and len([i for i in refused if i > 0]) >= 3
+    assert len(refused) + len(answered) == 5, {i: text[:120] for i, (text, _) in results.items()}
+    assert len([i for i in refused if i > 0]) >= 3
     assert server.workers[0].proc.wait(5) is not None  # ended: answered and stopped, or killed
+
+
+def test_a_call_after_close_is_refused_as_shutting_down_not_as_a_lost_worker(sim):
+    server = WorkerImagineServer(sim)
+    server.close(timeout=0.3)
+    text, error = server.serve(request(1))
+    assert isinstance(error, ShuttingDown) and "shutting down" in json.loads(text)["error"]
+
+
+def wait_until(predicate, timeout: float = 60.0) -> bool:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if predicate():
+            return True
+        time.sleep(0.005)
+    return bool(predicate())

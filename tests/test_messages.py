@@ -14,6 +14,7 @@ KINDS = messages.kinds()
 
 def test_every_payload_of_the_system_has_a_schema():
     assert set(KINDS) == {
+        "ack",
         "env_reset_request",
         "env_response",
         "env_step_request",

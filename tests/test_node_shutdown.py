@@ -15,6 +15,7 @@ import time
 import pytest
 
 pytest.importorskip("rclpy")
+from lwm_nodes import domains  # noqa: E402
 
 NODE = textwrap.dedent(
     """
@@ -38,7 +39,7 @@ NODE = textwrap.dedent(
 def stop_and_time(stall: str, tmp_path) -> tuple[int, float, str]:
     env = {
         **os.environ,
-        "ROS_DOMAIN_ID": str(1 + (os.getpid() + 37) % 100),
+        "ROS_DOMAIN_ID": str(domains.claim()),
         "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST",
         "ROS_LOG_DIR": str(tmp_path / "roslog"),
         "PYTHONUNBUFFERED": "1",

@@ -25,6 +25,8 @@ import pytest
 from lwm_models.ledger import Ledger
 
 pytest.importorskip("rclpy")
+from lwm_nodes import domains  # noqa: E402
+
 CHROMIUM, DRIVER = shutil.which("chromium"), shutil.which("chromedriver")
 if not (CHROMIUM and DRIVER):
     pytest.skip(
@@ -49,7 +51,7 @@ def page_system(tmp_path):
     port = free_port()
     env = {
         **os.environ,
-        "ROS_DOMAIN_ID": str(1 + (os.getpid() + 33) % 100),
+        "ROS_DOMAIN_ID": str(domains.claim()),
         "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST",
         "ROS_LOG_DIR": str(tmp_path / "roslog"),
     }
@@ -183,6 +185,10 @@ def test_review_in_the_browser(page_system, browser):
     assert report.startswith("report, plan ") and "real return" in report
     assert painted_cells(browser, "real") >= 2 and painted_cells(browser, "planned") >= 2
     shoot(browser, tmp_path, "review_page_report.png")
+    # An answer to a review that is over is refused, and the page says so in red beside the controls.
+    browser.find_element("id", "abort").click()
+    wait.until(lambda _: "is over (its report is out)" in text("message"))
+    assert browser.find_element("id", "message").value_of_css_property("color") == "rgba(170, 0, 0, 1)"
 
     # The history (the ledger, read by the page's server) lists the review with its report.
     review_id = title().split(" of review ")[1].split()[0]
@@ -205,7 +211,10 @@ def test_review_in_the_browser(page_system, browser):
     )
     with pytest.raises(urllib.error.HTTPError) as refused:
         urllib.request.urlopen(bad, timeout=10)
-    assert refused.value.code == 400 and "labels: actions/0" in json.load(refused.value)["error"]
+    said = json.load(refused.value)["error"]  # in words a person reads, not the schema's
+    assert refused.value.code == 400 and said == (
+        "the labels were refused: label 1: an action is 0 up, 1 down, 2 left, 3 right or 4 stay"
+    )
 
     # Another origin cannot answer through the reviewer's browser.
     request = urllib.request.Request(
@@ -403,7 +412,9 @@ def test_the_page_survives_node_restarts(page_system, browser):
     restart("lwm_nodes.planner_node")
     assert text("plan-title") == title and text("status").startswith("live ·")
     browser.find_element("id", "approve").click()
-    wait.until(lambda _: text("message") == "sent")
+    # The page says what became of it: kept for the planner, taken, or not answered yet.
+    answers = ("kept until review", "approved: the agent now acts", "has not answered in")
+    wait.until(lambda _: any(a in text("message") for a in answers))
     asked = approve_until_reported(browser, wait, title)
     final = text("plan-title")
     assert text("report-title").startswith(f"report, plan {final.split()[1]}: ")

@@ -16,8 +16,11 @@ from pathlib import Path
 import pytest
 from game_fixtures import MANUAL, OBS
 
+from lwm_models.ledger import Ledger
+
 pytest.importorskip("rclpy")
 pytest.importorskip("lwm_interfaces")
+from lwm_nodes import domains  # noqa: E402
 
 
 @pytest.fixture(scope="module")
@@ -38,7 +41,7 @@ def system(tmp_path_factory):
     env = {
         **os.environ,
         "PYTHONPATH": os.pathsep.join(filter(None, [str(audit), os.environ.get("PYTHONPATH", "")])),
-        "ROS_DOMAIN_ID": str(1 + os.getpid() % 100),
+        "ROS_DOMAIN_ID": str(domains.claim()),
         "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST",
         "ROS_LOG_DIR": str(tmp / "roslog"),
     }
@@ -92,8 +95,11 @@ def signed(system, reviewer: str = "terminal") -> list[str]:
 def call(system, service: str, payload: dict | str) -> dict:
     text = payload if isinstance(payload, str) else json.dumps(payload)
     proc = lwm_ros(system, "call", service, text, "--raw")
-    assert proc.returncode == 0, proc.stderr
-    return json.loads(proc.stdout.strip().splitlines()[-1])
+    answer = json.loads(proc.stdout.strip().splitlines()[-1])
+    # A refusal ("ok": false) exits 1 with the reason on stderr; anything else exits 0.
+    assert proc.returncode == (1 if answer.get("ok") is False else 0), proc.stderr
+    assert answer.get("ok") is not False or "refused the request" in proc.stderr
+    return answer
 
 
 def status(system) -> dict:
@@ -257,7 +263,10 @@ def test_malformed_payloads_get_errors_and_the_nodes_keep_serving(system):
             kind = {"/review/labels": "labels", "/review/feedback": "review_feedback"}.get(topic)
             sign = ["--kind", kind, *signed(system)] if kind else []
             sent = lwm_ros(system, "pub", topic, payload, "--raw", "-w", str(readers), "--wait", "10", *sign)
-            assert sent.returncode == 0, sent.stderr
+            if topic in ("/feedback/manual", "/review/labels", "/review/feedback"):  # the sender hears the refusal
+                assert sent.returncode == 1 and "refused by" in sent.stderr, (topic, sent.stdout, sent.stderr)
+            else:
+                assert sent.returncode == 0, sent.stderr
         bad = call(system, "/lwm/imagine", "{not json")
         assert not bad["ok"] and "not JSON" in bad["error"]
         bad = call(system, "/env/reset", "[1, 2]")
@@ -363,11 +372,13 @@ def test_bad_labels_get_errors_and_change_nothing_then_a_fixed_resend_is_taken(s
             ({**base, "request_id": request["request_id"] + 5, "states": [0], "actions": [3]}, "no label request"),
             ({**base, "states": [0], "actions": [7]}, "actions"),
         ]
-        for payload, _ in bad:
+        said = ["one action per state", "never shown", "no label request", "an action is 0 up, 1 down"]
+        for (payload, _), words in zip(bad, said, strict=True):
             sent = lwm_ros(
                 system, "pub", "/review/labels", json.dumps(payload), "--raw", "--kind", "labels", *signed(system)
             )
-            assert sent.returncode == 0, sent.stderr
+            # The sender hears why, in plain words, and exits non-zero.
+            assert sent.returncode == 1 and words in sent.stderr, (sent.stdout, sent.stderr)
         want = [why for _, why in bad]
 
         def seen():
@@ -377,10 +388,8 @@ def test_bad_labels_get_errors_and_change_nothing_then_a_fixed_resend_is_taken(s
         assert wait_for(seen, timeout=30), f"errors seen: {lines}"
         assert latched(system, "/planner/plan")["plan_id"] == plan["plan_id"]  # nothing changed
         fixed = {**base, "states": list(range(n)), "actions": [4] * n}
-        assert (
-            lwm_ros(system, "pub", "/review/labels", json.dumps(fixed), "--kind", "labels", *signed(system)).returncode
-            == 0
-        )
+        sent = lwm_ros(system, "pub", "/review/labels", json.dumps(fixed), "--kind", "labels", *signed(system))
+        assert sent.returncode == 0 and f"{n} label(s) for request" in sent.stdout, sent.stderr
         revised = wait_for(lambda: (p := latched(system, "/planner/plan"))["plan_id"] > plan["plan_id"] and p, 90)
         assert revised and revised["reason"] == "imitation" and revised["learning"]["labelled"] >= n
     finally:
@@ -437,9 +446,9 @@ def test_only_a_trusted_reviewer_can_approve(system, tmp_path):
             (["--sign", "terminal", "--keys-file", str(rogue_keys)], "from reviewer 'terminal': bad signature"),
             (["--sign", "mallory", "--keys-file", str(rogue_keys)], "reviewer 'mallory', who is not trusted"),
         ]
-        for extra, _ in rogues:
+        for extra, why in rogues:
             sent = lwm_ros(system, "pub", "/review/feedback", json.dumps(approve), "--kind", "review_feedback", *extra)
-            assert sent.returncode == 0, sent.stderr
+            assert sent.returncode == 1 and why in sent.stderr, sent.stderr
 
         def refused() -> list[str]:
             got = [json.loads(x) for x in list(lines) if x.strip()]
@@ -457,7 +466,7 @@ def test_only_a_trusted_reviewer_can_approve(system, tmp_path):
         sent = lwm_ros(
             system, "pub", "/review/feedback", json.dumps(approve), "--kind", "review_feedback", *signed(system)
         )
-        assert sent.returncode == 0, sent.stderr
+        assert sent.returncode == 0 and "approved: the agent now acts" in sent.stdout, sent.stderr
         feedback = wait_for(taken, timeout=30)
         assert feedback and feedback[0]["decision"] == "approve" and feedback[0]["reviewer"] == "terminal"
         assert feedback[0]["plan_id"] == plan["plan_id"] and len(feedback[0]["signature"]) == 64
@@ -466,11 +475,11 @@ def test_only_a_trusted_reviewer_can_approve(system, tmp_path):
         errors.wait(timeout=30)
 
 
-def start_scripted(tmp_path: Path, domain_offset: int, *extra: str) -> tuple[subprocess.Popen, dict, Path]:
+def start_scripted(tmp_path: Path, *extra: str) -> tuple[subprocess.Popen, dict, Path]:
     """The launcher with the scripted human, in its own ROS domain; returns (process, env, ledger)."""
     env = {
         **os.environ,
-        "ROS_DOMAIN_ID": str(1 + (os.getpid() + domain_offset) % 100),
+        "ROS_DOMAIN_ID": str(domains.claim()),
         "ROS_LOG_DIR": str(tmp_path / "roslog"),
         "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST",
     }
@@ -498,7 +507,7 @@ def start_scripted(tmp_path: Path, domain_offset: int, *extra: str) -> tuple[sub
 def test_scripted_review_loop_end_to_end(tmp_path):
     """The scripted human speaks first (--language: the true manual in other words on
     /feedback/manual), then reviews the plan imagined under it, teaches, and approves."""
-    proc, _, ledger = start_scripted(tmp_path, 50, "--language")
+    proc, _, ledger = start_scripted(tmp_path, "--language")
     out, _ = proc.communicate(timeout=600)
     assert proc.returncode == 0, out[-3000:]
     assert "human finished" in out
@@ -525,8 +534,45 @@ def test_scripted_review_loop_end_to_end(tmp_path):
     assert plans[0]["plan_id"] not in answered and plans[1]["plan_id"] in answered
 
 
+def test_every_run_in_one_checkout_starts_clean_and_resume_shows_a_finished_review(tmp_path):
+    """Two `./run_nodes.sh --scripted` in a row in one directory: each reviews its episode to the
+    end in a run directory of its own (logs/runs/<time>). --resume continues the newest: its
+    finished review is shown again, not redone; naming an earlier run's directory without
+    --resume is refused, not silently continued."""
+    env = {
+        **os.environ,
+        "ROS_DOMAIN_ID": str(domains.claim()),
+        "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST",
+    }
+    env.pop("LWM_LOGS", None)
+    env.pop("LWM_LEDGER", None)
+    cmd = [sys.executable, "-m", "lwm_nodes.launcher", "--scripted", "--quiet", "--iterations", "2", "--futures", "2"]
+
+    def launch(*extra: str) -> subprocess.CompletedProcess:
+        return subprocess.run([*cmd, *extra], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=600)
+
+    runs = []
+    for _ in range(2):
+        done = launch()
+        assert done.returncode == 0 and "SUMMARY review newall-test:0:0" in done.stdout, done.stdout[-3000:]
+        assert "a new run in logs/runs/" in done.stdout
+        runs.append((tmp_path / "logs" / "latest").resolve())
+        kinds = [r["kind"] for r in Ledger(runs[-1] / "ledger.sqlite").history()]
+        assert kinds.count("report") == 1 and kinds[:2] == ["manual", "plan"]  # reviewed from its start
+    assert runs[0] != runs[1] and runs[0].parent == runs[1].parent == tmp_path / "logs" / "runs"
+    resumed = launch("--resume")
+    assert resumed.returncode == 0 and "resuming the run in" in resumed.stdout, resumed.stdout[-3000:]
+    assert (
+        "1 review(s) in its ledger, 1 finished" in resumed.stdout and "SUMMARY review newall-test:0:0" in resumed.stdout
+    )
+    assert "finished earlier" in (runs[1] / "planner.log").read_text()
+    assert [r["kind"] for r in Ledger(runs[1] / "ledger.sqlite").history()].count("report") == 1  # not redone
+    refused = launch("--log-dir", str(runs[0]))
+    assert refused.returncode == 2 and "--resume" in refused.stderr and "Traceback" not in refused.stderr
+
+
 def test_simulator_killed_mid_review_the_review_resumes(tmp_path):
-    proc, env, ledger_path = start_scripted(tmp_path, 75)
+    proc, env, ledger_path = start_scripted(tmp_path)
     from lwm_models.ledger import Ledger
 
     def labelling():
@@ -547,7 +593,7 @@ def test_simulator_killed_mid_review_the_review_resumes(tmp_path):
 
 
 def test_planner_killed_mid_review_resumes_from_the_ledger(tmp_path):
-    proc, env, ledger_path = start_scripted(tmp_path, 25)
+    proc, env, ledger_path = start_scripted(tmp_path)
     from lwm_models.ledger import Ledger
 
     def first_plan_recorded():
@@ -576,7 +622,7 @@ def test_a_recorded_review_matches_the_ledger_and_plays_back(tmp_path):
     from lwm_models.ledger import Ledger
 
     path = tmp_path / "review.mcap"
-    proc, env, ledger = start_scripted(tmp_path, 60, "--record", str(path))
+    proc, env, ledger = start_scripted(tmp_path, "--record", str(path))
     out, _ = proc.communicate(timeout=600)
     assert proc.returncode == 0, out[-3000:]
     assert "recorder exit code 0" in out
@@ -597,7 +643,7 @@ def test_a_recorded_review_matches_the_ledger_and_plays_back(tmp_path):
     )
 
     # Play it back in a fresh domain: a subscriber receives the recorded plans, in order.
-    play_env = {**env, "ROS_DOMAIN_ID": str(1 + (os.getpid() + 61) % 100)}
+    play_env = {**env, "ROS_DOMAIN_ID": str(domains.claim())}
     ros = [sys.executable, "-m", "lwm_models.cli.main", "ros"]
     plans = by_topic["/planner/plan"]
     echo = subprocess.Popen(

@@ -120,6 +120,8 @@ class PlanReviewAgent:
     lr: float = 1e-3
     futures: int = 8
     labelled: LabelledSet = field(default_factory=LabelledSet)
+    # The person's corrections in this review: state (history bytes) -> (history, action).
+    pinned: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         self._policy_manual = self._encode(self.manual)
@@ -193,16 +195,46 @@ class PlanReviewAgent:
                 raise FeedbackError(f"action {c.action} is not in 0..{NUM_ACTIONS - 1}")
 
     def correct(self, plan: Plan, corrections: Sequence[Correction], updates: int = 30) -> int:
-        """The right action for states of a plan: the policy is fine-tuned on everything it has
-        been taught in this game. Returns how many labelled states it now has."""
+        """The right action for states of a plan. A person's correction outweighs everything
+        learnt before: it replaces any earlier label of the same state, it is kept (pinned) for
+        the rest of the review, and the policy is fine-tuned until it takes the corrected action
+        in every pinned state (see `hold_corrections`). Returns how many labelled states it has."""
         self.check_corrections(plan, corrections)
         obs = np.asarray(plan.observations, dtype=np.uint8)[None]
-        self.labelled.add(
-            np.stack([stack_history(obs[:, : c.step])[0] for c in corrections]),
-            np.array([c.action for c in corrections]),
-        )
+        hist = np.stack([stack_history(obs[:, : c.step])[0] for c in corrections])
+        actions = np.array([c.action for c in corrections], dtype=np.int64)
+        for h, a in zip(hist, actions, strict=True):
+            self.pinned[h.tobytes()] = (h, int(a))  # a later correction of the same state wins
+        self.labelled = self.labelled.without(hist)
+        self.labelled.add(hist, actions)
         self._fit(updates)
+        self.hold_corrections()
         return len(self.labelled)
+
+    def hold_corrections(self, max_updates: int = 300) -> bool:
+        """Fine-tune, the pinned corrections in every minibatch, until the policy's argmax action
+        in each pinned state is the corrected one (at most `max_updates` steps). Called after
+        every kind of learning, so that imitation rounds or demonstrations cannot undo what a
+        person corrected. True when every correction holds."""
+        if not self.pinned:
+            return True
+        hist = np.stack([h for h, _ in self.pinned.values()])
+        want = np.array([a for _, a in self.pinned.values()], dtype=np.int64)
+        taught_h, taught_y = self.labelled.arrays() if len(self.labelled) else (hist[:0], want[:0])
+        rng = np.random.default_rng(len(self.labelled))
+        for round_no in range(max_updates // 10 + 1):
+            if (act(self.policy, hist, self.id_values(len(hist)), sample=False) == want).all():
+                return True
+            if round_no == max_updates // 10:
+                return False
+            # Each step: every pinned state, weighted as much as a minibatch of what came before.
+            k = min(len(taught_y), 64)
+            pick = rng.integers(len(taught_y), size=k) if k else np.zeros(0, dtype=np.int64)
+            reps = max(1, k // len(want))
+            h = np.concatenate([np.repeat(hist, reps, 0), taught_h[pick]])
+            y = np.concatenate([np.repeat(want, reps), taught_y[pick]])
+            fit_labels(self.policy, self._policy_manual, h, y, 10, self.lr, batch=len(y), seed=round_no)
+        return False
 
     def clone(self, demonstrations: Sequence[dict], updates: int) -> int:
         """Filtered behaviour cloning: the reviewer's plans (observations o_0..o_n, actions)."""
@@ -218,6 +250,7 @@ class PlanReviewAgent:
             labels += actions
         self.labelled.add(np.stack(hist), np.asarray(labels))
         self._fit(updates)
+        self.hold_corrections()
         return len(self.labelled)
 
     def imitate(
@@ -230,8 +263,9 @@ class PlanReviewAgent:
         on_round: Callable[[int, float, int], None] | None = None,
         timings: dict[str, float] | None = None,
     ) -> list[float]:
-        """Online imitation through the imaginer from `starts`; labels come from label_round."""
-        return online_imitation(
+        """Online imitation through the imaginer from `starts`; labels come from label_round.
+        The person's corrections hold afterwards (hold_corrections)."""
+        losses = online_imitation(
             self.policy,
             self.imaginer,
             lambda: self._policy_manual,
@@ -245,6 +279,8 @@ class PlanReviewAgent:
             on_round,
             timings,
         )
+        self.hold_corrections()
+        return losses
 
     def _fit(self, updates: int) -> None:
         h, y = self.labelled.arrays()
@@ -256,6 +292,7 @@ class PlanReviewAgent:
             "manual": list(self.manual),
             "policy": copy.deepcopy(self.policy.state_dict()),
             "labelled": len(self.labelled),
+            "pinned": len(self.pinned),
         }
 
 

@@ -23,6 +23,7 @@ from ..data.dataset import TrajectoryDataset
 from ..messenger.constants import STARTS
 from ..messenger.engine import BatchedMessenger
 from ..messenger.spec import GameSpec
+from ..stats import mean_interval
 from ..world.base import ManualBatch, WorldModel
 from ..world.imagine import Imagination
 from .expert import expert_actions, role_ids
@@ -129,9 +130,9 @@ class RealEvaluation:
         return float(self.returns.mean())
 
     def interval(self) -> tuple[float, float]:
-        """95% normal interval of the mean return."""
-        half = 1.96 * float(self.returns.std(ddof=1)) / np.sqrt(len(self.returns)) if len(self.returns) > 1 else 0.0
-        return self.mean - half, self.mean + half
+        """95% t interval of the mean return over the episodes."""
+        _, lo, hi = mean_interval(self.returns)
+        return lo, hi
 
 
 def evaluate_real(
@@ -268,6 +269,17 @@ class LabelledSet:
 
     def arrays(self) -> tuple[np.ndarray, np.ndarray]:
         return np.concatenate(self.history), np.concatenate(self.labels)
+
+    def without(self, history: np.ndarray) -> LabelledSet:
+        """This set less every pair whose state is one of `history` (a correction replaces them)."""
+        if not len(self):
+            return LabelledSet()
+        h, y = self.arrays()
+        drop = {np.asarray(x, dtype=np.uint8).tobytes() for x in history}
+        keep = np.array([x.tobytes() not in drop for x in h], dtype=bool)
+        out = LabelledSet()
+        out.add(h[keep], y[keep])
+        return out
 
 
 def online_imitation(

@@ -58,6 +58,17 @@ def check_labels(request: dict, states: list[int], actions: list[int]) -> None:
         raise FeedbackError("a state is labelled twice")
 
 
+# What taking each decision does, said to its sender.
+TAKEN = {
+    "approve": "plan {plan} approved: the agent now acts in the real game",
+    "reject": "plan {plan} rejected: the agent imagines a new plan",
+    "corrections": "corrections of plan {plan} taken: the agent learns them and re-plans",
+    "imitate": "teaching started on plan {plan}: label requests follow",
+    "demonstrations": "demonstrations taken: the agent learns them and re-plans",
+    "abort": "plan {plan} aborted: nothing is executed",
+}
+
+
 @dataclass
 class ReviewConfig:
     """How the planner reviews. Defaults reproduce Table 3's online-imitation recipe, except that
@@ -117,6 +128,7 @@ class Review:
     revisions: int = 0
     requests: int = 0
     answered: set = field(default_factory=set)  # (plan_id, decision) taken
+    labelled_requests: set = field(default_factory=set)  # label requests whose labels were taken
     request: dict | None = None  # the label request waiting for labels
     labels: tuple | None = None
     labels_in: threading.Event = field(default_factory=threading.Event)
@@ -192,17 +204,23 @@ class ReviewLoop:
             self.pending_state = state
             self._maybe_start()
 
-    def on_feedback(self, msg: dict) -> None:
+    def on_feedback(self, msg: dict) -> str:
+        """Take a reviewer's answer to the plan under review; returns what taking it does (for the
+        sender's acknowledgement). FeedbackError, with the reason, when it cannot be taken."""
         with self.lock:
             if self._keep_early(self.on_feedback, msg):
-                return
+                return f"kept until review {msg['review_id']} opens (the planner is starting)"
             r = self.review
             if r is None or msg["review_id"] != r.review_id:
                 current = None if r is None else r.review_id
                 raise FeedbackError(f"feedback for review {msg['review_id']!r}; the open review is {current!r}")
             decision = msg["decision"]
             if (msg["plan_id"], decision) in r.answered:
-                return  # already taken (delivered again after a restart)
+                return f"{decision} of plan {msg['plan_id']} was taken already"  # delivered again after a restart
+            if r.phase == "done":
+                raise FeedbackError(
+                    f"review {r.review_id} is over (its report is out); start the next episode to review again"
+                )
             if r.phase != "reviewing" or r.plan is None or msg["plan_id"] != r.plan.plan_id:
                 raise FeedbackError(
                     f"plan {msg['plan_id']} is not under review (plan {r.plan and r.plan.plan_id}, {r.phase})"
@@ -217,25 +235,34 @@ class ReviewLoop:
             r.answered.add((msg["plan_id"], decision))
             r.phase = "executing" if decision == "approve" else "done" if decision == "abort" else "planning"
             self._submit(lambda: self._take(r, msg, record))
+            return TAKEN[decision].format(plan=msg["plan_id"])
 
-    def on_labels(self, msg: dict) -> None:
+    def on_labels(self, msg: dict) -> str:
+        """Take the labels of the open label request; returns what was taken."""
         with self.lock:
             if self._keep_early(self.on_labels, msg):
-                return
+                return f"kept until review {msg['review_id']} opens (the planner is starting)"
             r = self.review
             if r is None or msg["review_id"] != r.review_id:
                 raise FeedbackError(f"labels for review {msg['review_id']!r}, which is not open")
             req = r.request
             if req is None or msg["request_id"] != req["request_id"]:
+                if msg["request_id"] in r.labelled_requests:  # delivered again after a restart
+                    return f"labels for request {msg['request_id']} were taken already"
                 if msg["request_id"] <= r.requests:
-                    return  # answered or expired earlier (delivered again after a restart)
+                    raise FeedbackError(
+                        f"label request {msg['request_id']} is over: its time ran out before these labels came, "
+                        f"so nothing was learnt from them"
+                    )
                 raise FeedbackError(f"no label request {msg['request_id']} (the last is {r.requests})")
             states, actions = msg["states"], msg["actions"]
             check_labels(req, states, actions)
             self.ledger.record(r.review_id, "labels", {"request_id": req["request_id"], "labels": len(states)})
+            r.labelled_requests.add(req["request_id"])
             r.labels = (np.asarray(states, dtype=np.int64), np.asarray(actions, dtype=np.int64))
             r.request = None
             r.labels_in.set()
+            return f"{len(states)} label(s) for request {msg['request_id']} taken"
 
     def _keep_early(self, handler: Callable[[dict], None], msg: dict) -> bool:
         """A restarted planner gets the kept feedback and labels before its review is rebuilt:
@@ -568,10 +595,17 @@ class ReviewLoop:
         path = self._policy_path(r)
         labelled = r.agent.labelled
 
+        pinned = list(r.agent.pinned.values())
+
         def labels(d: Path) -> None:
+            arrays = {}
             if len(labelled):
-                h, y = labelled.arrays()
-                save_arrays({"history": h, "labels": y}, str(d / LABELS))
+                arrays["history"], arrays["labels"] = labelled.arrays()
+            if pinned:  # the person's corrections, which must hold after a restart too
+                arrays["pinned_history"] = np.stack([h for h, _ in pinned])
+                arrays["pinned_actions"] = np.array([a for _, a in pinned], dtype=np.int64)
+            if arrays:
+                save_arrays(arrays, str(d / LABELS))
 
         save_policy(r.agent.policy, path, {"review_id": r.review_id, "after": after}, also=labels)
         self.ledger.record(
@@ -596,6 +630,8 @@ class ReviewLoop:
                     r.revisions += 1
             elif kind == "label_request":
                 r.requests = max(r.requests, p["request_id"])
+            elif kind == "labels":
+                r.labelled_requests.add(p["request_id"])
             elif kind == "policy":
                 saved = p
             elif kind == "report":
@@ -606,11 +642,19 @@ class ReviewLoop:
             r.agent.labelled = LabelledSet()
             if data.is_file():
                 arrays = load_arrays(str(data))
-                r.agent.labelled.add(arrays["history"], arrays["labels"])
-        self.ports.log(f"review {r.review_id} resumed from the ledger at plan {last_plan and last_plan['plan_id']}")
+                if "history" in arrays:
+                    r.agent.labelled.add(arrays["history"], arrays["labels"])
+                for h, a in zip(arrays.get("pinned_history", []), arrays.get("pinned_actions", []), strict=True):
+                    r.agent.pinned[h.tobytes()] = (h, int(a))
         if done:
+            # A finished review is never redone: its report is shown again, so that a person who
+            # continues a run sees how this episode ended (the next episode is theirs to start).
             r.phase = "done"
+            report = next(rec["payload"] for rec in reversed(history) if rec["kind"] == "report")
+            self.ports.publish_report(report)
+            self.ports.log(f"review {r.review_id} finished earlier ({report['outcome']}); its report is shown again")
             return
+        self.ports.log(f"review {r.review_id} resumed from the ledger at plan {last_plan and last_plan['plan_id']}")
         if last_plan is None:
             self._submit(lambda: self._plan(r, "resume"))
             return

@@ -3,7 +3,7 @@
 For every test game: start from the warm-start policy, learn inside the world model from the
 simulated human (online imitation, or filtered behaviour cloning of the expert's best imagined
 plans), then play the real game 48 times (each of the 24 starts twice, argmax actions). The
-figure is the mean real return over games, with a 95% interval over games.
+figure is the mean real return over games, with a 95% t interval over games.
 """
 
 from __future__ import annotations
@@ -14,6 +14,7 @@ import time
 import numpy as np
 
 from ..messenger.spec import GameSpec
+from ..stats import mean_interval
 from ..world.base import WorldModel
 from ..world.frozen_text import FrozenTextEncoder
 from ..world.imagine import imagine
@@ -105,9 +106,9 @@ def run_game(
 
 
 def summarize(returns: list[float]) -> dict:
-    a = np.asarray(returns, dtype=np.float64)
-    half = 1.96 * a.std(ddof=1) / np.sqrt(len(a)) if len(a) > 1 else 0.0
-    return {"mean": float(a.mean()), "ci95": [float(a.mean() - half), float(a.mean() + half)], "games": len(a)}
+    """Mean real return over games and its 95% t interval over games (the paper's)."""
+    mean, lo, hi = mean_interval(returns)
+    return {"mean": mean, "ci95": [lo, hi], "games": len(returns)}
 
 
 __all__ = ["Budget", "filtered_behaviour_cloning", "run_game", "summarize"]

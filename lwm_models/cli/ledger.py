@@ -7,13 +7,16 @@ import sqlite3
 from pathlib import Path
 
 from ..errors import LwmError
+from ..run_dirs import DEFAULT_LEDGER
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     ledger = subparsers.add_parser("ledger", help="the review ledger")
     ledger_sub = ledger.add_subparsers(dest="ledger_command", required=True)
     p = ledger_sub.add_parser("show", help="print the history of a review (default: every review)")
-    p.add_argument("--path", type=Path, default=Path("logs/ledger.sqlite"), help="ledger file")
+    p.add_argument(
+        "--path", type=Path, default=DEFAULT_LEDGER, help="ledger file (default: the newest run's, logs/latest)"
+    )
     p.add_argument("--review", default=None, help="review id (default: every review)")
     p.set_defaults(func=run_show)
 

@@ -180,12 +180,18 @@ class _Worker:
 
     def submit(self, key: int, job: _Job) -> None:
         with self.lock:
+            # Checked under the lock that stop() takes: a call that comes after the STOP is refused
+            # as the server's stop, not as a lost worker (which would invite a retry).
+            if self._closed.is_set():
+                raise ShuttingDown("the simulator is shutting down")
             self.jobs[key] = job
             self.load += job.size
             try:
                 self.conn.send(track_message(key, job.track))
             except (OSError, ValueError):  # the process is gone; the receiver starts another
                 self._pop(key)
+                if self._closed.is_set():
+                    raise ShuttingDown("the simulator is shutting down") from None
                 raise WorkerLost("the imagination worker stopped; try again") from None
 
     def stop(self) -> None:

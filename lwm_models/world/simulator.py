@@ -97,6 +97,21 @@ class Simulator:
             self._save()
             return self.manual_version, True
 
+    def unnamed_entities(self, descriptions: list[str]) -> list[str] | None:
+        """The entities of the current game that no description names (read by the keyword
+        parser), so that a person who wrote about another board hears it; None when the game is
+        not known yet."""
+        from ..data.splits import load_split
+        from ..text.parser import parse_identity
+
+        split, _, index = self.game.rpartition(":")
+        try:
+            game = load_split(split)[int(index)]
+        except (LwmError, ValueError, IndexError, KeyError, OSError):
+            return None
+        named = {parse_identity(d) for d in descriptions}
+        return [e.identity for e in game.entities if e.identity not in named]
+
     def take_env_manual(self, descriptions: list[str], episode_id: str = "") -> tuple[int, bool]:
         """The environment's manual is the default: it replaces the manual when no person has
         given one, or when the game changed (a person's manual was about the previous game)."""

@@ -43,7 +43,11 @@ FEEDBACK = QoSProfile(
     reliability=ReliabilityPolicy.RELIABLE,
     durability=DurabilityPolicy.TRANSIENT_LOCAL,
 )
+# Answers to what a sender gave a node (feedback, labels, a manual): kept (transient local), so
+# that a sender whose subscription matched a moment late still finds its answer.
+ACKS = FEEDBACK
 ERRORS_TOPIC = "/lwm/errors"
+ACKS_TOPIC = "/lwm/acks"
 FASTDDS_PROFILE = Path(__file__).resolve().parents[3] / "fastdds_profile.xml"
 
 
@@ -61,6 +65,7 @@ class JsonNode(Node):
     def __init__(self, name: str) -> None:
         super().__init__(name)
         self._errors = self.create_publisher(String, ERRORS_TOPIC, EVENTS)
+        self._acks = None  # created by the first subscription that answers its senders
 
     def close(self) -> None:
         """Called on SIGINT/SIGTERM before the executor shuts down: a node whose callbacks may be
@@ -84,15 +89,37 @@ class JsonNode(Node):
 
         return publish
 
-    def json_subscription(self, topic: str, kind: str, handler: Callable[[dict], None], qos: QoSProfile):
+    def json_subscription(
+        self, topic: str, kind: str, handler: Callable[[dict], str | None], qos: QoSProfile, acks: bool = False
+    ):
+        """Subscribe with validation: a payload that does not parse, or that the handler refuses
+        (raises), is reported on /lwm/errors and changes nothing. With `acks`, every message also
+        gets an answer on /lwm/acks for its sender: taken (with what the handler returned, a line
+        saying what it did) or refused, with the reason in plain words."""
+        if acks and self._acks is None:
+            self._acks = self.create_publisher(String, ACKS_TOPIC, ACKS)
+
         def callback(msg: String) -> None:
+            msg_id = None
             try:
+                msg_id = messages.msg_id_of(msg.data)
                 payload = messages.parse(kind, msg.data)
-                handler(payload)
+                done = handler(payload)
             except Exception as exc:  # a bad message must never take the node down
                 self.report_error(topic, exc, msg.data)
+                if acks:
+                    self.acknowledge(topic, msg_id, False, messages.plain_reason(exc), msg.data)
+                return
+            if acks:
+                self.acknowledge(topic, msg_id, True, done or "taken", msg.data)
 
         return self.create_subscription(String, topic, callback, qos)
+
+    def acknowledge(self, topic: str, msg_id: str | None, ok: bool, reason: str, payload: str = "") -> None:
+        ack = {"node": self.get_name(), "topic": topic, "msg_id": msg_id, "ok": ok, "reason": reason[:2000]}
+        if not ok or msg_id is None:
+            ack["payload_excerpt"] = payload[:500]
+        self._acks.publish(String(data=messages.dump("ack", ack)))
 
     def report_error(self, where: str, exc: Exception, payload: str = "") -> None:
         text = f"{type(exc).__name__}: {exc}" if not isinstance(exc, messages.MessageError) else str(exc)

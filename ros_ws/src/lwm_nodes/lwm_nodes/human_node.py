@@ -33,10 +33,13 @@ import sqlite3
 import sys
 import threading
 import time
+import uuid
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 from lwm_interfaces.srv import Json
+from std_msgs.msg import String
 
 from lwm_models import messages
 from lwm_models.agent.imaginer import ServiceImaginer
@@ -47,9 +50,20 @@ from lwm_models.data.splits import load_split
 from lwm_models.ledger import Ledger
 from lwm_models.messenger.constants import ACTION_NAMES
 from lwm_models.messenger.render import render_ascii
-from lwm_nodes.common import FEEDBACK, LATCHED, JsonNode, json_caller, run
+from lwm_models.run_dirs import DEFAULT_LEDGER
+from lwm_nodes.common import ACKS, ACKS_TOPIC, FEEDBACK, LATCHED, JsonNode, json_caller, run
 from lwm_nodes.review_page import ReviewPage
 from lwm_nodes.trust import Signer
+
+PAGE_ANSWER_WAIT_S = 8.0  # how long the page's request waits for the receiving node's answer
+
+
+class Refused(ValueError):
+    """The receiving node refused what the person sent; the message is its reason."""
+
+
+class NoAnswer(ValueError):
+    """Nothing answered what the person sent in time (it may still be taken)."""
 
 
 class HumanNode(JsonNode):
@@ -76,13 +90,21 @@ class HumanNode(JsonNode):
         self.request_deadline = float("inf")  # monotonic; when the planner stops waiting for its labels
         self.answered: set[tuple[str, int]] = set()  # (review_id, request_id): the planner takes one answer
         self.labels_lock = threading.Lock()  # the page answers from its own threads (a double click, too)
-        self.ledger_path = Path(p("ledger", "logs/ledger.sqlite").value)
+        self.ledger_path = Path(p("ledger", str(DEFAULT_LEDGER)).value)
         signer = Signer(self, "scripted" if self.scripted else "terminal")
-        self.publish_feedback = signer.publisher(
-            self.json_publisher("/review/feedback", "review_feedback", FEEDBACK), "review_feedback"
+        # What this node sent, by msg_id, until the receiving node answers on /lwm/acks.
+        self.sent: dict[str, dict] = {}
+        self.sent_lock = threading.Lock()
+        self.publish_feedback = self._answered(
+            signer.publisher(self.json_publisher("/review/feedback", "review_feedback", FEEDBACK), "review_feedback")
         )
-        self.publish_labels = signer.publisher(self.json_publisher("/review/labels", "labels", FEEDBACK), "labels")
-        self.publish_manual = signer.publisher(self.json_publisher("/feedback/manual", "manual", LATCHED), "manual")
+        self.publish_labels = self._answered(
+            signer.publisher(self.json_publisher("/review/labels", "labels", FEEDBACK), "labels")
+        )
+        self.publish_manual = self._answered(
+            signer.publisher(self.json_publisher("/feedback/manual", "manual", LATCHED), "manual")
+        )
+        self.create_subscription(String, ACKS_TOPIC, self.on_ack, ACKS)
         self.imaginer = ServiceImaginer(
             json_caller(self, self.create_client(Json, "/lwm/imagine"), "imagine_response", 30.0)
         )
@@ -110,6 +132,45 @@ class HumanNode(JsonNode):
         threading.Thread(target=self._work, daemon=True).start()
         if not self.scripted and self.page is None:
             threading.Thread(target=self.read_commands, daemon=True).start()
+
+    def _answered(self, publish: Callable[[dict], None]) -> Callable[[dict], str]:
+        """`publish`, with a msg_id on each payload, so that the receiving node's answer on
+        /lwm/acks comes back to this sender; returns the msg_id."""
+
+        def send(payload: dict) -> str:
+            msg_id = f"{self.get_name()}-{uuid.uuid4().hex[:12]}"
+            with self.sent_lock:
+                self.sent[msg_id] = {"event": threading.Event(), "ack": None}
+            publish({**payload, "msg_id": msg_id})
+            return msg_id
+
+        return send
+
+    def on_ack(self, msg: String) -> None:
+        """The receiving node's answer to something this node sent: the terminal prints it, the
+        page's waiting request gets it. Answers to others, and repeats, are ignored."""
+        try:
+            ack = messages.parse("ack", msg.data)
+        except messages.MessageError as exc:
+            self.report_error(ACKS_TOPIC, exc, msg.data)
+            return
+        with self.sent_lock:
+            entry = self.sent.get(ack["msg_id"] or "")
+            if entry is None or entry["ack"] is not None:
+                return
+            entry["ack"] = ack
+        entry["event"].set()
+        if self.page is None:
+            who = ack["node"].replace("lwm_", "")
+            print(f"{who}: {ack['reason']}" if ack["ok"] else f"REFUSED by the {who}: {ack['reason']}", flush=True)
+
+    def answer_to(self, msg_id: str, timeout: float = PAGE_ANSWER_WAIT_S) -> dict | None:
+        """The receiving node's answer to msg_id, waiting up to `timeout` seconds; None if none came."""
+        with self.sent_lock:
+            entry = self.sent.get(msg_id)
+        if entry is None or not entry["event"].wait(timeout):
+            return None
+        return entry["ack"]
 
     def on_state(self, payload: dict) -> None:
         g = payload["game"]
@@ -236,20 +297,30 @@ class HumanNode(JsonNode):
                 return None if moved_on or expired else rec["time"]
         return time.time()
 
-    def on_page_feedback(self, body: dict) -> None:
-        """An answer from the page; the schema (checked before publishing) refuses a wrong one."""
+    def on_page_feedback(self, body: dict) -> str:
+        """An answer from the page; the schema (checked before publishing) refuses a wrong one,
+        the planner the rest. Returns the planner's words; raises with them when it refuses."""
         allowed = ("review_id", "plan_id", "decision", "corrections", "rounds")
-        self.publish_feedback({k: v for k, v in body.items() if k in allowed})
+        msg_id = self.publish_feedback({k: v for k, v in body.items() if k in allowed})
         self.get_logger().info(f"page: {body.get('decision')} on plan {body.get('plan_id')}")
+        return self._page_answer(msg_id, "the planner")
 
-    def send_labels(self, states: list[int], actions: list[int], request_id: int | None = None) -> None:
+    def _page_answer(self, msg_id: str, who: str) -> str:
+        ack = self.answer_to(msg_id)
+        if ack is None:
+            raise NoAnswer(f"sent, but {who} has not answered in {PAGE_ANSWER_WAIT_S:.0f} s (is it running?)")
+        if not ack["ok"]:
+            raise Refused(ack["reason"])
+        return ack["reason"]
+
+    def send_labels(self, states: list[int], actions: list[int], request_id: int | None = None) -> str:
         """Labels from a person (terminal or page) for the current label request; request_id, when
         given, is the request they looked at. Refused with the reason, nothing published, when
         they do not fit it: labels for another request would teach the wrong states."""
         with self.labels_lock:
-            self._send_labels(states, actions, request_id)
+            return self._send_labels(states, actions, request_id)
 
-    def _send_labels(self, states: list[int], actions: list[int], request_id: int | None) -> None:
+    def _send_labels(self, states: list[int], actions: list[int], request_id: int | None) -> str:
         request = self.request
         if request is None:
             raise ValueError("there is no label request")
@@ -263,12 +334,13 @@ class HumanNode(JsonNode):
             raise ValueError(f"request {request['request_id']} has expired: the planner waits {waits:.0f} s for labels")
         check_labels(request, states, actions)
         ids = {"review_id": request["review_id"], "request_id": request["request_id"]}
-        self.publish_labels({**ids, "states": states, "actions": actions})
+        msg_id = self.publish_labels({**ids, "states": states, "actions": actions})
         self.answered.add(key)
         if self.page is not None:
             self.page.push("label_request", None)
+        return msg_id
 
-    def on_page_labels(self, body: dict) -> None:
+    def on_page_labels(self, body: dict) -> str:
         """Labels from the page: the schema first (a page's payload is as untrusted as a topic's),
         then the terminal's path."""
         fields = {k: body.get(k) for k in ("review_id", "request_id", "states", "actions")}
@@ -276,8 +348,9 @@ class HumanNode(JsonNode):
         request = self.request
         if request is not None and labels["review_id"] != request["review_id"]:
             raise ValueError(f"these labels are for review {labels['review_id']!r}, not {request['review_id']!r}")
-        self.send_labels(labels["states"], labels["actions"], labels["request_id"])
+        msg_id = self.send_labels(labels["states"], labels["actions"], labels["request_id"])
         self.get_logger().info(f"page: {len(labels['states'])} label(s) for request {labels['request_id']}")
+        return self._page_answer(msg_id, "the planner")
 
     def page_history(self, review_id: str | None) -> dict:
         """The reviews in the ledger, or one review's records; read-only: the planner writes it."""
@@ -293,9 +366,10 @@ class HumanNode(JsonNode):
         finally:
             ledger.close()
 
-    def on_page_manual(self, descriptions: list[str]) -> None:
-        self.publish_manual({"descriptions": descriptions, "source": "human"})
+    def on_page_manual(self, descriptions: list[str]) -> str:
+        msg_id = self.publish_manual({"descriptions": descriptions, "source": "human"})
         self.get_logger().info("page: a new manual")
+        return self._page_answer(msg_id, "the simulator")
 
     def close(self) -> None:
         if self.page is not None:

@@ -12,8 +12,10 @@ the nodes that sign (the human node) or verify (the simulator and the planner).
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import signal
+import sqlite3
 import subprocess
 import sys
 import threading
@@ -21,7 +23,8 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from lwm_models import signing
+from lwm_models import run_dirs, signing
+from lwm_models.ledger import Ledger
 from lwm_nodes.common import ros_environment
 
 
@@ -217,19 +220,83 @@ def supervise(
     return worst
 
 
+def choose_run_dir(log_dir: Path | None, resume: Path | None) -> tuple[Path, Path]:
+    """This run's directory and the default key file. A new run gets a new directory unless
+    --log-dir names one; --resume continues the one it names (or logs/latest)."""
+    if resume is not None:
+        if log_dir is not None and resume != Path(run_dirs.LATEST) and resume.resolve() != log_dir.resolve():
+            raise ValueError("--resume and --log-dir name different runs; give one of them")
+        target = log_dir or (run_dirs.latest_run_dir() if resume == Path(run_dirs.LATEST) else resume)
+        if target is None or not target.is_dir():
+            raise ValueError(f"no earlier run to resume at {target or run_dirs.LOGS / run_dirs.LATEST}")
+        if log_dir is None and target.resolve().parent == (run_dirs.LOGS / "runs").resolve():
+            run_dirs.point_latest(target)
+        keys = target / run_dirs.KEYS_FILE if log_dir is not None else run_dirs.LOGS / run_dirs.KEYS_FILE
+        return target, keys
+    if log_dir is not None:
+        return log_dir, log_dir / run_dirs.KEYS_FILE
+    return run_dirs.new_run_dir(), run_dirs.LOGS / run_dirs.KEYS_FILE
+
+
+def describe_run(log_dir: Path, ledger: Path, state: Path, resumed: bool) -> str:
+    """What this run starts from, said before anything starts: a person must know whether the
+    agent remembers an earlier review."""
+    if not resumed:
+        return (
+            f"launcher: a new run in {log_dir}: no earlier reviews, the game's own manual, the shipped policy "
+            f"(continue it later with --resume {log_dir})"
+        )
+    reviews, finished = 0, 0
+    if ledger.is_file():
+        try:
+            book = Ledger(ledger, read_only=True)
+            summaries = book.summaries()
+            book.close()
+            reviews, finished = len(summaries), sum(s["report"] is not None for s in summaries)
+        except (OSError, sqlite3.Error) as exc:
+            return f"launcher: resuming {log_dir}; its ledger {ledger} cannot be read ({exc})"
+    manual = ""
+    if state.is_file():
+        try:
+            saved = json.loads(state.read_text())
+            manual = f"; the simulator's manual v{saved.get('manual_version', '?')}"
+        except (OSError, ValueError):
+            manual = f"; the simulator's state {state} cannot be read"
+    return (
+        f"launcher: resuming the run in {log_dir}: {reviews} review(s) in its ledger, {finished} finished "
+        f"(shown, not redone){manual}"
+    )
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="run_nodes.sh", description="Start the LWM system's nodes.")
     parser.add_argument("--checkpoint", default="", help="world model for the simulator (default: shipped EMMA-LWM)")
     parser.add_argument("--split", default="newall-test", help="split of the game the environment runs")
     parser.add_argument("--index", type=int, default=0, help="game index in the split")
     parser.add_argument("--seed", type=int, default=0, help="episode seed")
-    parser.add_argument("--log-dir", type=Path, default=Path("logs"), help="where each node's log goes")
+    parser.add_argument(
+        "--log-dir",
+        type=Path,
+        default=None,
+        help="this run's directory: each node's log, the review ledger, the simulator's manual, the policy "
+        "snapshots (default: a new logs/runs/<time>; logs/latest points at the newest)",
+    )
+    parser.add_argument(
+        "--resume",
+        nargs="?",
+        type=Path,
+        const=Path(run_dirs.LATEST),
+        default=None,
+        metavar="RUN_DIR",
+        help="continue an earlier run: its reviews (a finished one is shown again, not redone), the manual the "
+        "simulator was given and the learnt policy (default RUN_DIR: the newest run, logs/latest)",
+    )
     parser.add_argument("--ready-timeout", type=float, default=120.0)
     parser.add_argument("--max-restarts", type=int, default=3)
     parser.add_argument("--quiet", action="store_true", help="do not echo the nodes' output")
     parser.add_argument("--run-for", type=float, default=None, help="stop after this many seconds (demos, tests)")
     parser.add_argument("--policy", default="", help="policy directory for the planner (default: shipped, if any)")
-    parser.add_argument("--ledger", default="logs/ledger.sqlite", help="review ledger (SQLite)")
+    parser.add_argument("--ledger", default=None, help="review ledger, SQLite (default: LOG_DIR/ledger.sqlite)")
     parser.add_argument(
         "--state",
         default=None,
@@ -240,7 +307,7 @@ def main(argv: list[str] | None = None) -> int:
         type=Path,
         default=None,
         help="the reviewers' keys (JSON, mode 0600), created with random keys if missing; keep it out of git "
-        "(default: LOG_DIR/reviewer_keys.json)",
+        "(default: logs/reviewer_keys.json, kept across runs; LOG_DIR/reviewer_keys.json when --log-dir is given)",
     )
     parser.add_argument(
         "--trusted",
@@ -312,6 +379,20 @@ def main(argv: list[str] | None = None) -> int:
     )
     args = parser.parse_args(argv)
     ros_environment()
+    try:
+        args.log_dir, keys_default = choose_run_dir(args.log_dir, args.resume)
+    except ValueError as exc:
+        parser.error(str(exc))
+    ledger = Path(args.ledger) if args.ledger else args.log_dir / run_dirs.LEDGER_FILE
+    state = Path(args.state) if args.state is not None else args.log_dir / run_dirs.STATE_FILE
+    if args.resume is None and (args.only in ("", None) or "planner" in args.only or "simulator" in args.only):
+        earlier = run_dirs.earlier_run_files(args.log_dir, ledger, state)
+        if earlier:
+            parser.error(
+                f"{', '.join(map(str, earlier))} hold(s) an earlier run's reviews or manual; pass --resume "
+                f"{args.log_dir} to continue that run, or leave out --log-dir/--ledger/--state for a new one"
+            )
+    print(describe_run(args.log_dir, ledger, state, args.resume is not None), flush=True)
     os.environ.setdefault("ROS_LOG_DIR", str(args.log_dir.resolve() / "ros"))
     if args.scripted:
         human = "scripted"
@@ -327,8 +408,7 @@ def main(argv: list[str] | None = None) -> int:
     reviewer = {"teach": args.teach, "quiet": "false" if args.show_frames else "true", "episodes": str(args.episodes)}
     if args.language:
         reviewer.update({"language": "true", **({"texts": ",".join(args.texts)} if args.texts else {})})
-    state = args.state if args.state is not None else str(args.log_dir / "simulator_state.json")
-    keys_file = args.keys_file if args.keys_file is not None else args.log_dir / "reviewer_keys.json"
+    keys_file = args.keys_file if args.keys_file is not None else keys_default
     # A new file gets both reviewers; an existing one (perhaps shared across hosts) only gains the
     # one this launch's human node signs as.
     needed = {"scripted": ["scripted"], "interactive": ["terminal"], "page": ["terminal"]}.get(human, [])
@@ -343,9 +423,9 @@ def main(argv: list[str] | None = None) -> int:
         args.index,
         args.seed,
         args.policy,
-        args.ledger,
+        str(ledger),
         human,
-        state,
+        str(state),
         planner,
         reviewer,
         args.texts,

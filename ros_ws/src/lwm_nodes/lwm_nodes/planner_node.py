@@ -23,6 +23,7 @@ from lwm_models.agent.policy import EmmaPolicy, load_policy
 from lwm_models.agent.review import Ports, ReviewConfig, ReviewLoop
 from lwm_models.errors import LwmError
 from lwm_models.ledger import Ledger
+from lwm_models.run_dirs import DEFAULT_LEDGER
 from lwm_models.world.frozen_text import FrozenTextEncoder
 from lwm_models.world.shipped import SHIPPED_POLICY
 from lwm_nodes.common import FEEDBACK, LATCHED, JsonNode, json_caller, run
@@ -36,7 +37,7 @@ class PlannerNode(JsonNode):
         self.declare_threads()
         keyring = declare_keyring(self)  # first: a bad key file stops the node before the models load
         self.policy_dir = p("policy", "").value
-        ledger = p("ledger", "logs/ledger.sqlite").value
+        ledger = p("ledger", str(DEFAULT_LEDGER)).value
         call_timeout = float(p("call_timeout", 30.0).value)
         budget = Budget(
             iterations=int(p("iterations", Budget.iterations).value),
@@ -78,9 +79,9 @@ class PlannerNode(JsonNode):
         self.json_subscription("/lwm/status", "status", self.loop.on_status, LATCHED)
         self.json_subscription("/env/state", "state", self.loop.on_state, LATCHED)
         on_feedback = verified(keyring, "review_feedback", "/review/feedback", self.loop.on_feedback)
-        self.json_subscription("/review/feedback", "review_feedback", on_feedback, FEEDBACK)
+        self.json_subscription("/review/feedback", "review_feedback", on_feedback, FEEDBACK, acks=True)
         on_labels = verified(keyring, "labels", "/review/labels", self.loop.on_labels)
-        self.json_subscription("/review/labels", "labels", on_labels, FEEDBACK)
+        self.json_subscription("/review/labels", "labels", on_labels, FEEDBACK, acks=True)
 
     def make_policy(self) -> EmmaPolicy:
         if self.policy_dir:

@@ -22,6 +22,8 @@ from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 from urllib.parse import parse_qs, urlsplit
 
+from lwm_models.messages import plain_reason
+
 PAGE = Path(__file__).with_name("web") / "review.html"
 HEARTBEAT_S = 10.0  # a comment line on idle event streams, so a closed tab is noticed
 RETRY_MS = 1000  # how soon a page whose stream broke (a node restart) connects again
@@ -30,8 +32,8 @@ MAX_BODY = 1 << 20
 
 class ReviewPage:
     """What the page shows and where its answers go. on_feedback, on_labels and on_manual take the
-    body of a POST and raise to refuse it (the page shows the reason); history(review_id or None)
-    answers GET /api/history."""
+    body of a POST and return the receiving node's words (shown beside the control), or raise to
+    refuse it (the page shows the reason); history(review_id or None) answers GET /api/history."""
 
     KINDS = ("plan", "label_request", "report", "status")
     # Sent to a (re)connecting page even when there is none: the page may still show a request that
@@ -43,9 +45,9 @@ class ReviewPage:
         self,
         host: str,
         port: int,
-        on_feedback: Callable[[dict], None],
-        on_manual: Callable[[list[str]], None],
-        on_labels: Callable[[dict], None],
+        on_feedback: Callable[[dict], str],
+        on_manual: Callable[[list[str]], str],
+        on_labels: Callable[[dict], str],
         history: Callable[[str | None], dict],
     ) -> None:
         self._state: dict[str, dict | None] = dict.fromkeys(self.KINDS)
@@ -149,13 +151,20 @@ def _handler(page: ReviewPage) -> type[BaseHTTPRequestHandler]:
                 body = json.loads(self.rfile.read(length) or b"null")
                 if not isinstance(body, dict):
                     raise ValueError("send a JSON object")
-                handle(body)
-            except Exception as exc:  # the person sees why; the node keeps serving
-                return self._answer(HTTPStatus.BAD_REQUEST, f"{type(exc).__name__}: {exc}")
-            self._answer(HTTPStatus.OK)
+                said = handle(body)
+            except Exception as exc:  # the person sees why, in words; the node keeps serving
+                pending = type(exc).__name__ == "NoAnswer"  # sent, but nobody answered yet
+                status = HTTPStatus.ACCEPTED if pending else HTTPStatus.BAD_REQUEST
+                return self._answer(status, plain_reason(exc))
+            self._answer(HTTPStatus.OK, said or "taken")
 
-        def _answer(self, status: HTTPStatus, error: str = "") -> None:
-            body = {"ok": True} if status == HTTPStatus.OK else {"ok": False, "error": error}
+        def _answer(self, status: HTTPStatus, words: str = "") -> None:
+            if status == HTTPStatus.OK:
+                body = {"ok": True, "answer": words}
+            elif status == HTTPStatus.ACCEPTED:
+                body = {"ok": True, "pending": True, "answer": words}
+            else:
+                body = {"ok": False, "error": words}
             self._send(status, json.dumps(body).encode(), "application/json")
 
         def _send(self, status: HTTPStatus, body: bytes, kind: str) -> None:

@@ -2,8 +2,9 @@
 
     lwm ros nodes | topics | services
     lwm ros pub TOPIC JSON|@FILE [--kind manual] [--sign REVIEWER [--keys-file FILE]] [--volatile] [--wait 1.0] [-w N]
+                                 [--ack-timeout 10]   (exit 1 when the receiving node refuses it)
     lwm ros echo TOPIC [--count N] [--timeout S] [--latched]
-    lwm ros call SERVICE JSON|@FILE [--timeout S]
+    lwm ros call SERVICE JSON|@FILE [--timeout S]   (exit 1 when the answer says "ok": false)
     lwm ros keys [--keys-file FILE] [--reviewer ID ...]
     lwm ros record FILE [--duration S]
     lwm ros play FILE [--rate R] [--topics T ...] [--wait S]
@@ -23,6 +24,7 @@ import signal
 import sys
 import threading
 import time
+import uuid
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -75,18 +77,46 @@ def cmd_graph(node: Node, what: str, settle: float) -> int:
     return 0
 
 
+# Topics whose receiving node answers every message on /lwm/acks (taken, or refused and why).
+ACKED_TOPICS = {"/review/feedback": "the planner", "/review/labels": "the planner", "/feedback/manual": "the simulator"}
+NO_ANSWER = 3  # exit status when no node answered in time (1: refused, 2: bad usage or input)
+
+
 def cmd_pub(node: Node, args) -> int:
+    """Publish one message. On a topic whose node answers (ACKED_TOPICS), wait for that answer:
+    exit 0 when the message was taken, 1 when it was refused (the reason on stderr), NO_ANSWER
+    when nobody answered within --ack-timeout."""
     from rclpy.duration import Duration
     from std_msgs.msg import String
 
     from lwm_models import messages
-    from lwm_nodes.common import EVENTS, LATCHED
+    from lwm_nodes.common import ACKS, ACKS_TOPIC, EVENTS, LATCHED
 
     text = _payload(args.payload, args.raw)
+    answered_by = ACKED_TOPICS.get(args.topic) if args.ack_timeout > 0 else None
+    msg_id = None
+    if answered_by and not args.raw:
+        payload = json.loads(text)
+        if isinstance(payload, dict):
+            msg_id = payload.setdefault("msg_id", f"cli-{uuid.uuid4().hex[:12]}")
+            text = json.dumps(payload)
     if args.sign:
-        text = _signed(args)
+        text = _signed(args, text)
     if args.kind and not (args.raw and args.sign):
         messages.parse(args.kind, text)
+    answers: list[dict] = []
+    got = threading.Event()
+    if answered_by:
+
+        def on_ack(msg: String) -> None:
+            ack = json.loads(msg.data)
+            ours = ack.get("msg_id") == msg_id if msg_id else ack.get("payload_excerpt") == text[:500]
+            if ours and ack.get("topic") == args.topic:
+                answers.append(ack)
+                got.set()
+
+        # Before publishing: the answer may come at once. Transient local: a late match still sees it.
+        node.create_subscription(String, ACKS_TOPIC, on_ack, ACKS)
     # A transient-local writer matches both volatile and transient-local readers (a volatile one
     # would not reach the system's latched subscriptions such as /feedback/manual).
     pub = node.create_publisher(String, args.topic, EVENTS if args.volatile else LATCHED)
@@ -97,10 +127,24 @@ def cmd_pub(node: Node, args) -> int:
     # Reliable delivery needs the publisher alive until every reader has acknowledged the sample.
     pub.wait_for_all_acked(Duration(seconds=max(args.wait, 0.5)))
     print(f"published to {args.topic} ({pub.get_subscription_count()} subscriber(s))")
-    return 0
+    if not answered_by:
+        return 0
+    if not got.wait(args.ack_timeout):
+        print(
+            f"lwm ros: no answer from {answered_by} in {args.ack_timeout:.0f} s: it may not be running, or it is "
+            f"busy (the message may still be taken; see /lwm/acks)",
+            file=sys.stderr,
+        )
+        return NO_ANSWER
+    ack = answers[0]
+    if ack["ok"]:
+        print(f"taken by {ack['node']}: {ack['reason']}")
+        return 0
+    print(f"lwm ros: refused by {ack['node']}: {ack['reason']}", file=sys.stderr)
+    return 1
 
 
-def _signed(args) -> str:
+def _signed(args, text: str) -> str:
     """The payload signed as reviewer args.sign with its key from the key file (the version filled
     in first, since the signature covers it). With --raw it is signed but not validated, to show
     a node refusing a signed payload for what it says."""
@@ -108,7 +152,7 @@ def _signed(args) -> str:
 
     if not args.kind:
         raise ValueError("--sign needs --kind: the signature covers the message kind")
-    payload = json.loads(_payload(args.payload))
+    payload = json.loads(text)
     if not isinstance(payload, dict):
         raise ValueError("only a JSON object can be signed")
     key = signing.load_keys(args.keys_file).get(args.sign)
@@ -129,6 +173,7 @@ def cmd_keys(args) -> int:
 
 
 def cmd_echo(node: Node, args) -> int:
+    from rclpy.qos import QoSProfile
     from std_msgs.msg import String
 
     from lwm_nodes.common import EVENTS, LATCHED
@@ -142,7 +187,12 @@ def cmd_echo(node: Node, args) -> int:
         if args.count and len(got) >= args.count:
             done.set()
 
-    node.create_subscription(String, args.topic, callback, LATCHED if args.latched else EVENTS)
+    qos = LATCHED if args.latched else EVENTS
+    if args.count > qos.depth:
+        # A burst of messages (a recording played back fast) must not be thinned to the newest
+        # while this process is busy printing: keep as many as are asked for.
+        qos = QoSProfile(history=qos.history, depth=args.count, reliability=qos.reliability, durability=qos.durability)
+    node.create_subscription(String, args.topic, callback, qos)
     done.wait(args.timeout if args.timeout > 0 else None)
     return 0 if got or not args.count else 1
 
@@ -160,6 +210,13 @@ def cmd_call(node: Node, args) -> int:
         print(f"lwm ros: error: {args.service} did not answer within {args.timeout} s", file=sys.stderr)
         return 2
     print(response.response)
+    try:
+        answer = json.loads(response.response)
+    except ValueError:
+        return 0
+    if isinstance(answer, dict) and answer.get("ok") is False:
+        print(f"lwm ros: {args.service} refused the request: {answer.get('error', 'no reason given')}", file=sys.stderr)
+        return 1
     return 0
 
 
@@ -236,6 +293,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "take feedback only from reviewers they trust",
     )
     s.add_argument("--keys-file", type=Path, default=DEFAULT_KEYS, help="the reviewers' keys (default: %(default)s)")
+    s.add_argument(
+        "--ack-timeout",
+        type=float,
+        default=10.0,
+        help="on /review/feedback, /review/labels and /feedback/manual: seconds to wait for the node's answer "
+        "(exit 1 when it refuses, 3 when none comes; 0: do not wait)",
+    )
     s = sub.add_parser("keys", help="create the reviewers' key file, or add reviewers to it")
     s.add_argument("--keys-file", type=Path, default=DEFAULT_KEYS, help="the key file (default: %(default)s)")
     s.add_argument(

@@ -41,7 +41,7 @@ class SimulatorNode(JsonNode):
         self.publish_status = self.json_publisher("/lwm/status", "status", LATCHED)
         # A manual from a person counts only if a reviewer it trusts signed it (keys_file, trusted).
         on_feedback = verified(declare_keyring(self), "manual", "/feedback/manual", self.on_feedback)
-        self.json_subscription("/feedback/manual", "manual", on_feedback, LATCHED)
+        self.json_subscription("/feedback/manual", "manual", on_feedback, LATCHED, acks=True)
         self.json_subscription("/env/manual", "manual", self.on_env_manual, LATCHED)
         max_rows = int(self.declare_parameter("max_batch_trajectories", 256).value)
         workers = int(self.declare_parameter("imagine_workers", 1).value)  # processes imagining one-shot calls
@@ -52,11 +52,17 @@ class SimulatorNode(JsonNode):
             f"model {self.sim.model_name} from {self.sim.checkpoint}; manual v{self.sim.manual_version}"
         )
 
-    def on_feedback(self, payload: dict) -> None:
+    def on_feedback(self, payload: dict) -> str:
         version, changed = self.sim.set_manual(payload["descriptions"], payload.get("source", "human"))
-        if changed:
-            self.get_logger().info(f"manual version {version} from {payload.get('source', 'human')}")
-            self.publish_status(self.sim.status())
+        if not changed:
+            return f"the same manual as version {version}: nothing changes"
+        self.get_logger().info(f"manual version {version} from {payload.get('source', 'human')}")
+        self.publish_status(self.sim.status())
+        said = f"manual version {version} taken: the world model reads it and the agent re-plans"
+        unnamed = self.sim.unnamed_entities(payload["descriptions"])
+        if unnamed is not None and len(unnamed) == 3:
+            said += f"; but it names none of the entities on the board ({', '.join(unnamed)})"
+        return said
 
     def on_env_manual(self, payload: dict) -> None:
         if not self.follow_env:

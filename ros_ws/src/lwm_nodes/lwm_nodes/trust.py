@@ -38,15 +38,15 @@ def declare_keyring(node: Node) -> signing.Keyring:
 
 
 def verified(
-    keyring: signing.Keyring, kind: str, topic: str, handler: Callable[[dict], None]
-) -> Callable[[dict], None]:
+    keyring: signing.Keyring, kind: str, topic: str, handler: Callable[[dict], str | None]
+) -> Callable[[dict], str | None]:
     """The handler, called only for payloads a trusted reviewer signed; anything else raises a
     SigningError that names the reviewer, the topic and the reason (JsonNode reports it on
     /lwm/errors and the handler never sees the payload)."""
 
-    def check(payload: dict) -> None:
+    def check(payload: dict) -> str | None:
         keyring.verify(kind, payload, topic)
-        handler(payload)
+        return handler(payload)
 
     return check
 
