@@ -145,6 +145,16 @@ def test_review_in_the_browser(page_system, browser):
     assert "airplane: enemy, chaser" in legend
     shoot(browser, tmp_path, "review_page_new_manual.png")
 
+    # A correction of step 1 (the episode's real first state): the next plan takes that action there,
+    # and the page says the planner took it.
+    shown = json.load(urllib.request.urlopen(url + "api/state", timeout=10))["plan"]
+    wanted = (shown["actions"][0] + 2) % 5
+    browser.find_element("id", "corrections").send_keys(f"1:{wanted}")
+    browser.find_element("id", "correct").click()
+    wait.until(lambda _: f"corrections of plan {shown['plan_id']} taken" in browser.find_element("id", "message").text)
+    wait.until(lambda _: title().startswith(f"plan {shown['plan_id'] + 1} "))
+    assert json.load(urllib.request.urlopen(url + "api/state", timeout=10))["plan"]["actions"][0] == wanted
+
     # Online imitation (2 rounds in this system): each round's states come to the page to label.
     imitated = title().split()[1]
     browser.find_element("id", "imitate").click()
@@ -182,13 +192,14 @@ def test_review_in_the_browser(page_system, browser):
     browser.find_element("id", "approve").click()
     approve_until_reported(browser, wait, approved)
     report = browser.find_element("id", "report-title").text
-    assert report.startswith("report, plan ") and "real return" in report
+    assert report.startswith("report of review newall-test:") and ", plan " in report and "real return" in report
     assert painted_cells(browser, "real") >= 2 and painted_cells(browser, "planned") >= 2
     shoot(browser, tmp_path, "review_page_report.png")
     # An answer to a review that is over is refused, and the page says so in red beside the controls.
     browser.find_element("id", "abort").click()
     wait.until(lambda _: "is over (its report is out)" in text("message"))
     assert browser.find_element("id", "message").value_of_css_property("color") == "rgba(170, 0, 0, 1)"
+    shoot(browser, tmp_path, "review_page_refused.png", "message")
 
     # The history (the ledger, read by the page's server) lists the review with its report.
     review_id = title().split(" of review ")[1].split()[0]
@@ -215,6 +226,16 @@ def test_review_in_the_browser(page_system, browser):
     assert refused.value.code == 400 and said == (
         "the labels were refused: label 1: an action is 0 up, 1 down, 2 left, 3 right or 4 stay"
     )
+
+    # The next episode: a fresh review of the same game, from its start.
+    browser.find_element("id", "next-episode").click()
+    game = review_id.rsplit(":", 1)[0]
+    following = f"{game}:{int(review_id.rsplit(':', 1)[1]) + 1}"
+    wait.until(lambda _: f"episode {following} started" in text("episode-message"))
+    wait.until(lambda _: f" of review {following}" in title())
+    # The last review's report and the answer about it are gone: they were not about this plan.
+    assert not browser.find_element("id", "report").is_displayed() and text("message") == ""
+    shoot(browser, tmp_path, "review_page_next_episode.png")
 
     # Another origin cannot answer through the reviewer's browser.
     request = urllib.request.Request(
@@ -417,7 +438,7 @@ def test_the_page_survives_node_restarts(page_system, browser):
     wait.until(lambda _: any(a in text("message") for a in answers))
     asked = approve_until_reported(browser, wait, title)
     final = text("plan-title")
-    assert text("report-title").startswith(f"report, plan {final.split()[1]}: ")
+    assert f", plan {final.split()[1]}: " in text("report-title")
     # The plan the restarted planner published again is not shown twice: after the approval only
     # the plans asked for again from the real state came, then the report.
     assert received() == ["plan"] * (len(asked) - 1) + ["report"], received()

@@ -308,6 +308,8 @@ def test_malformed_payloads_get_errors_and_the_nodes_keep_serving(system):
             lambda: (p := latched(system, "/planner/plan"))["plan_id"] > plan["plan_id"] and p, timeout=60
         )
         assert revised and revised["review_id"] == plan["review_id"]
+        # The corrected step, from the same (real, first) state, takes the corrected action.
+        assert revised["actions"][0] == fix["corrections"][0]["action"]
         log = system["tmp"] / "human_node.log"
         assert wait_for(lambda: f"=== plan {revised['plan_id']} " in log.read_text(), timeout=30)
         assert human.poll() is None

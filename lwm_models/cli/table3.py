@@ -136,7 +136,7 @@ def table(records: list[dict]) -> dict:
 
 
 def print_table(rows: dict) -> None:
-    print("Table 3: mean real return over the test games of each split (95% interval); paper in brackets")
+    print("Table 3: mean real return over the test games of each split (95% t interval over games); paper in brackets")
     print(f"{'setting / model':<28}" + "".join(f"{s:>36}" for s in SPLITS))
     for key, row in rows.items():
         setting, name = key.split("/")

@@ -10,6 +10,9 @@ futures, then
                       per request, before the planner stops waiting (the request's timeout)
     x                 abort: execute nothing
     m                 a new manual, three descriptions, one per line (published on /feedback/manual)
+    n [SEED]          the next episode of this game (the next seed, or SEED): a fresh review
+Every answer, label batch and manual gets the receiving node's answer on /lwm/acks (printed here,
+shown on the page): taken, or refused with the reason.
 Scripted (parameter scripted:=true): the paper's simulated human, the expert reading the true
 manual (lwm_models.agent.reviewer): it labels every state of each imitation round, corrects,
 and never approves a plan whose shown trajectory dies; it prints a summary when the execution
@@ -84,6 +87,7 @@ class HumanNode(JsonNode):
         self.split = ""
         self.stop = stop
         self.game = None
+        self.episode: str | None = None  # the episode the environment plays now
         self.reviewer: ScriptedReviewer | None = None
         self.plan: dict | None = None
         self.request: dict | None = None
@@ -123,6 +127,7 @@ class HumanNode(JsonNode):
                 on_manual=self.on_page_manual,
                 on_labels=self.on_page_labels,
                 history=self.page_history,
+                on_episode=lambda body: self.next_episode(body.get("seed")),
             )
             self.json_subscription("/lwm/status", "status", lambda s: self.page.push("status", s), LATCHED)
             print(f"PAGE review page at {self.page.url}", flush=True)
@@ -172,7 +177,23 @@ class HumanNode(JsonNode):
             return None
         return entry["ack"]
 
+    def next_episode(self, seed: int | None = None) -> str:
+        """Start the next episode of this game (the next seed, or `seed`): the environment resets
+        and the planner opens a fresh review of it."""
+        if seed is None:
+            if self.episode is None:
+                raise ValueError("no episode yet: the environment has not said which game it plays")
+            seed = int(self.episode.rsplit(":", 1)[-1]) + 1
+        if not isinstance(seed, int) or seed < 0:
+            raise ValueError(f"a seed is a whole number >= 0, not {seed!r}")
+        answer = self.env_reset({"seed": seed})
+        if not answer.get("ok"):
+            raise ValueError(f"the environment refused: {answer.get('error', 'no reason given')}")
+        episode = answer["state"]["episode_id"]
+        return f"episode {episode} started; its plan follows"
+
     def on_state(self, payload: dict) -> None:
+        self.episode = payload["episode_id"]
         g = payload["game"]
         game = load_split(g["split"])[g["index"]]
         if game is not self.game:
@@ -197,7 +218,7 @@ class HumanNode(JsonNode):
         if self.scripted:
             self.work.put(lambda: self.answer_scripted(plan))
         else:
-            print("answer: a | r | c STEP:ACTION ... | i [ROUNDS] | x | m", flush=True)
+            print("answer: a | r | c STEP:ACTION ... | i [ROUNDS] | x | m | n (next episode)", flush=True)
 
     def answer_scripted(self, plan: dict) -> None:
         if self.reviewer is None:
@@ -416,6 +437,10 @@ class HumanNode(JsonNode):
             manual = [sys.stdin.readline().strip() for _ in range(3)]
             self.publish_manual({"descriptions": manual, "source": "human"})
             return
+        if line == "n" or line.startswith("n "):
+            seed = line.split()[1:]
+            print(self.next_episode(int(seed[0]) if seed else None), flush=True)
+            return
         if line.startswith("l "):
             pairs = [] if line[2:].strip() == "-" else [p.split(":") for p in line[2:].split()]
             self.send_labels([int(s) for s, _ in pairs], [int(a) for _, a in pairs])
@@ -436,7 +461,10 @@ class HumanNode(JsonNode):
             fixes = [{"step": int(s), "action": int(a)} for s, a in (p.split(":") for p in line[2:].split())]
             self.publish_feedback({**base, "decision": "corrections", "corrections": fixes})
         else:
-            print("unknown command; a | r | c STEP:ACTION ... | i [ROUNDS] | l STATE:ACTION ... | x | m", flush=True)
+            print(
+                "unknown command; a | r | c STEP:ACTION ... | i [ROUNDS] | l STATE:ACTION ... | x | m | n [SEED]",
+                flush=True,
+            )
 
 
 def show(plan: dict, quiet: bool = False) -> None:

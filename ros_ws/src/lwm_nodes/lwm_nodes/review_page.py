@@ -5,7 +5,8 @@ a snapshot of what is under review (GET /api/state), live updates as server-sent
 /api/events: plan, label_request, report, status; a page that connects, or reconnects after a
 node restart, gets what is shown now first, "no label request" included), the review history from the ledger (GET
 /api/history, /api/history?review=ID; the node reads the ledger read-only), and the person's
-answers (POST /api/feedback, /api/labels, /api/manual), which the node signs and publishes. It
+answers (POST /api/feedback, /api/labels, /api/manual), which the node signs and publishes, and
+the next episode (POST /api/episode). It
 binds to localhost unless told otherwise. A POST must be JSON and, when the browser names an
 origin, come from this page: a web page on another origin cannot answer a plan through the
 reviewer's browser.
@@ -49,12 +50,14 @@ class ReviewPage:
         on_manual: Callable[[list[str]], str],
         on_labels: Callable[[dict], str],
         history: Callable[[str | None], dict],
+        on_episode: Callable[[dict], str] | None = None,
     ) -> None:
         self._state: dict[str, dict | None] = dict.fromkeys(self.KINDS)
         self._streams: list[queue.SimpleQueue] = []
         self._lock = threading.Lock()
         self._closed = threading.Event()
         self.on_feedback, self.on_manual, self.on_labels, self.history = on_feedback, on_manual, on_labels, history
+        self.on_episode = on_episode or _no_episodes
         self.server = ThreadingHTTPServer((host, port), _handler(self))
         self.server.daemon_threads = True
         threading.Thread(target=self.server.serve_forever, name="review-page", daemon=True).start()
@@ -104,6 +107,10 @@ class ReviewPage:
         self.server.server_close()
 
 
+def _no_episodes(body: dict) -> str:
+    raise ValueError("this page cannot start episodes")
+
+
 def _handler(page: ReviewPage) -> type[BaseHTTPRequestHandler]:
     class Handler(BaseHTTPRequestHandler):
         protocol_version = "HTTP/1.1"
@@ -134,6 +141,7 @@ def _handler(page: ReviewPage) -> type[BaseHTTPRequestHandler]:
                 "/api/feedback": page.on_feedback,
                 "/api/labels": page.on_labels,
                 "/api/manual": lambda b: page.on_manual(b["descriptions"]),
+                "/api/episode": page.on_episode,
             }
             handle = routes.get(self.path)
             origin = self.headers.get("Origin")
