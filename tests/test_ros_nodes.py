@@ -477,6 +477,50 @@ def test_only_a_trusted_reviewer_can_approve(system, tmp_path):
         errors.wait(timeout=30)
 
 
+def test_the_terminal_review_shows_answers_refusals_and_takes_a_correction(system):
+    """A person at the terminal: starts an episode (n SEED), sees a compact plan with a legend,
+    is told why a correction is refused, and a correction of step 1 makes the next plan take it."""
+    log_path = system["tmp"] / "terminal.log"
+    log = open(log_path, "w")
+    keys = str(system["tmp"] / "logs" / "reviewer_keys.json")
+    human = subprocess.Popen(
+        [sys.executable, "-m", "lwm_nodes.human_node", "--ros-args", "-p", f"keys_file:={keys}"],
+        stdin=subprocess.PIPE,
+        stdout=log,
+        stderr=subprocess.STDOUT,
+        env={**system["env"], "PYTHONUNBUFFERED": "1"},
+        text=True,
+    )
+
+    def type_line(line: str) -> None:
+        human.stdin.write(line + "\n")
+        human.stdin.flush()
+
+    def said(words: str, timeout: float = 60) -> bool:
+        return bool(wait_for(lambda: words in log_path.read_text(), timeout=timeout))
+
+    try:
+        assert said("READY")
+        type_line("n 21")
+        assert said("episode newall-test:0:21 started"), log_path.read_text()[-2000:]
+        assert said("=== plan ") and said("of review newall-test:0:21"), log_path.read_text()[-2000:]
+        plan = wait_for(lambda: (p := latched(system, "/planner/plan"))["review_id"].endswith(":21") and p)
+        text = log_path.read_text()
+        assert "board: " in text and "actions: 0 up  1 down" in text and "steps: 1 " in text
+        type_line("c 99:3")
+        assert said("REFUSED by the planner: step 99 is not in the plan"), log_path.read_text()[-2000:]
+        wanted = (plan["actions"][0] + 2) % 5
+        type_line(f"c 1:{wanted}")
+        assert said(f"planner: corrections of plan {plan['plan_id']} taken"), log_path.read_text()[-2000:]
+        revised = wait_for(lambda: (p := latched(system, "/planner/plan"))["plan_id"] > plan["plan_id"] and p)
+        assert revised and revised["actions"][0] == wanted
+    finally:
+        human.send_signal(signal.SIGINT)
+        human.wait(timeout=30)
+        log.close()
+    assert human.returncode == 0
+
+
 def start_scripted(tmp_path: Path, *extra: str) -> tuple[subprocess.Popen, dict, Path]:
     """The launcher with the scripted human, in its own ROS domain; returns (process, env, ledger)."""
     env = {

@@ -11,6 +11,8 @@ futures, then
     x                 abort: execute nothing
     m                 a new manual, three descriptions, one per line (published on /feedback/manual)
     n [SEED]          the next episode of this game (the next seed, or SEED): a fresh review
+    f                 every frame of the plan (a plan shows its start and last board, a line per step)
+    s N               state N of the label request, beside the state a step before it
 Every answer, label batch and manual gets the receiving node's answer on /lwm/acks (printed here,
 shown on the page): taken, or refused with the reason.
 Scripted (parameter scripted:=true): the paper's simulated human, the expert reading the true
@@ -40,19 +42,17 @@ import uuid
 from collections.abc import Callable
 from pathlib import Path
 
-import numpy as np
 from lwm_interfaces.srv import Json
 from std_msgs.msg import String
 
 from lwm_models import messages
 from lwm_models.agent.imaginer import ServiceImaginer
 from lwm_models.agent.review import check_labels
+from lwm_models.agent.review_text import plan_text, state_text
 from lwm_models.agent.review_view import history_view, label_request_view, plan_view, report_view
 from lwm_models.agent.reviewer import ScriptedReviewer
 from lwm_models.data.splits import load_split
 from lwm_models.ledger import Ledger
-from lwm_models.messenger.constants import ACTION_NAMES
-from lwm_models.messenger.render import render_ascii
 from lwm_models.run_dirs import DEFAULT_LEDGER
 from lwm_nodes.common import ACKS, ACKS_TOPIC, FEEDBACK, LATCHED, JsonNode, json_caller, run
 from lwm_nodes.review_page import ReviewPage
@@ -218,7 +218,11 @@ class HumanNode(JsonNode):
         if self.scripted:
             self.work.put(lambda: self.answer_scripted(plan))
         else:
-            print("answer: a | r | c STEP:ACTION ... | i [ROUNDS] | x | m | n (next episode)", flush=True)
+            print(
+                "answer: a approve | r reject | c STEP:ACTION ... correct | i [ROUNDS] teach | x abort | m manual | "
+                "n next episode | f every frame",
+                flush=True,
+            )
 
     def answer_scripted(self, plan: dict) -> None:
         if self.reviewer is None:
@@ -284,9 +288,11 @@ class HumanNode(JsonNode):
         else:
             print(
                 f"label request {request['request_id']} (round {request['round']}/{request['rounds']}): {n} imagined "
-                f"states; label with l STATE:ACTION ... (states 0..{n - 1}), or l - for none",
+                f"states; label the ones you are sure of with l STATE:ACTION ... (states 0..{n - 1}), l - for none; "
+                f"the planner waits {waits:.0f} s",
                 flush=True,
             )
+            self.show_state(0)
 
     def request_issued(self, request: dict) -> float | None:
         """When the planner issued this label request (wall time), or None when it waits for it no
@@ -317,6 +323,16 @@ class HumanNode(JsonNode):
                 expired = rec["time"] + request.get("timeout", float("inf")) <= time.time()
                 return None if moved_on or expired else rec["time"]
         return time.time()
+
+    def show_state(self, k: int) -> None:
+        """State k of the label request, beside the state a step before it in its episode."""
+        request = self.request
+        if request is None:
+            raise ValueError("there is no label request")
+        if not 0 <= k < len(request["observations"]):
+            raise ValueError(f"state {k} is not in the request (states 0..{len(request['observations']) - 1})")
+        before = label_request_view(request)["before"][k]
+        print(state_text(request, k, request["observations"][before] if before >= 0 else None), flush=True)
 
     def on_page_feedback(self, body: dict) -> str:
         """An answer from the page; the schema (checked before publishing) refuses a wrong one,
@@ -437,6 +453,12 @@ class HumanNode(JsonNode):
             manual = [sys.stdin.readline().strip() for _ in range(3)]
             self.publish_manual({"descriptions": manual, "source": "human"})
             return
+        if line.startswith("s "):
+            self.show_state(int(line.split()[1]))
+            return
+        if line == "f" and self.plan is not None:
+            show(self.plan, frames="all")
+            return
         if line == "n" or line.startswith("n "):
             seed = line.split()[1:]
             print(self.next_episode(int(seed[0]) if seed else None), flush=True)
@@ -467,29 +489,8 @@ class HumanNode(JsonNode):
             )
 
 
-def show(plan: dict, quiet: bool = False) -> None:
-    f = plan["futures"]
-    print(
-        f"\n=== plan {plan['plan_id']} (review {plan['review_id']}, {plan.get('reason', '')}, manual "
-        f"v{plan['manual_version']}, from step {plan.get('start_step', 0)}): imagined return "
-        f"{plan['imagined_return']:+.2f}; {f['k']} sampled futures: {f['death_share']:.0%} die, return "
-        f"{f['return_mean']:+.2f} +- {f['return_std']:.2f} ===",
-        flush=True,
-    )
-    if quiet:
-        return
-    for t, obs in enumerate(plan["observations"]):
-        if t == 0:
-            print("start")
-        else:
-            agree = plan.get("agreement", [])
-            print(
-                f"step {t}: {ACTION_NAMES[plan['actions'][t - 1]]}, reward {plan['rewards'][t - 1]:+.1f}, "
-                f"confidence {plan['confidence'][t - 1]:.2f}"
-                + (f", futures agree {agree[t - 1]:.0%}" if len(agree) >= t else "")
-            )
-        print(render_ascii(np.asarray(obs, dtype=np.uint8)))
-    sys.stdout.flush()
+def show(plan: dict, quiet: bool = False, frames: str = "ends") -> None:
+    print("\n" + plan_text(plan, "none" if quiet else frames), flush=True)
 
 
 def main() -> int:

@@ -1,0 +1,34 @@
+"""The terminal's view of a review: a plan in a screenful, one account of its outcome, and a
+label request's state beside the state before it."""
+
+from __future__ import annotations
+
+import copy
+
+from lwm_models import messages
+from lwm_models.agent.review_text import outcome, plan_text, state_text
+
+
+def test_a_plan_tells_its_outcome_once_with_a_legend_and_its_ends():
+    plan = messages.schema("plan")["examples"][0]
+    text = plan_text(plan)
+    assert "the plan: return +1.50, wins at step 10" in text and "2 sampled futures: 100% die" in text
+    assert "board: A airplane  L ball  R robot  @ you" in text and "actions: 0 up  1 down  2 left" in text
+    assert "7 down (picks up the message)" in text and "10 right (wins)" in text
+    assert text.count("+---") == 4  # two boards: the start and the last
+    assert plan_text(plan, "all").count("+---") == 2 * len(plan["observations"])
+    assert len(plan_text(plan, "none").splitlines()) == 2
+
+
+def test_a_plan_that_dies_says_where():
+    plan = copy.deepcopy(messages.schema("plan")["examples"][0])
+    plan["rewards"][3], plan["dones"][3] = -1.0, True
+    assert outcome(plan) == "dies at step 4" and "4 down (dies)" in plan_text(plan)
+
+
+def test_a_label_request_state_is_shown_beside_the_one_before_it():
+    request = messages.schema("label_request")["examples"][0]
+    alone = state_text(request, 0)
+    assert alone.startswith("state 0 of 3") and alone.count("+---") == 2 and "l 0:ACTION" in alone
+    paired = state_text(request, 1, request["observations"][0])
+    assert "a step before" in paired and paired.count("+---") == 4 and "+   +---" in paired  # side by side
