@@ -96,6 +96,18 @@ def painted_cells(driver, canvas: str) -> int:
     )
 
 
+def approve(driver) -> bool:
+    """Click approve as a person who has read the warning: a plan whose sampled futures die half
+    the time or more asks for a second click ("approve anyway"). True when it asked."""
+    button = driver.find_element("id", "approve")
+    button.click()
+    if button.text != "approve anyway":
+        return False
+    assert "of this plan's sampled futures die" in driver.find_element("id", "message").text
+    button.click()
+    return True
+
+
 def approve_until_reported(driver, wait: WebDriverWait, approved: str) -> set[str]:
     """Wait for the execution report after the plan titled `approved` was approved. The execution
     monitor may stop and ask for review again from the real state (a plan with reason
@@ -108,11 +120,16 @@ def approve_until_reported(driver, wait: WebDriverWait, approved: str) -> set[st
         now = driver.find_element("id", "plan-title").text
         if "(divergence)" in now and now not in asked:
             asked.add(now)
-            driver.find_element("id", "approve").click()
+            approve(driver)
         return False
 
     wait.until(reported)
     return asked
+
+
+def report_review(title: str) -> str:
+    """The review id in a report's title ("report of review ID, plan ...")."""
+    return title.removeprefix("report of review ").split(",")[0]
 
 
 def shoot(driver, tmp_path: Path, name: str, panel: str | None = None) -> None:
@@ -131,7 +148,8 @@ def test_review_in_the_browser(page_system, browser):
     title = lambda: browser.find_element("id", "plan-title").text  # noqa: E731
     wait.until(lambda _: title().startswith("plan 1 "))
     assert "manual v1" in title() and painted_cells(browser, "board") >= 3  # avatar and entities
-    assert title().endswith("under the game's rules")  # the launcher's default: constrained plans
+    assert title().endswith("imagined with only moves the game allows")  # the default: constrained plans
+    assert " the plan " in title() and ("dies at step" in title() or "wins at step" in title() or "runs" in title())
     assert len(browser.find_elements("css selector", "#legend div")) == 3
     shoot(browser, tmp_path, "review_page_plan.png")
 
@@ -189,17 +207,31 @@ def test_review_in_the_browser(page_system, browser):
     assert taken == [{"request_id": 1, "labels": 5}, {"request_id": 2, "labels": 2}]  # what the planner took
 
     approved = title()
-    browser.find_element("id", "approve").click()
+    # A correction the planner refuses: the reason, in red, beside the controls.
+    browser.find_element("id", "corrections").clear()
+    browser.find_element("id", "corrections").send_keys("99:3")
+    browser.find_element("id", "correct").click()
+    wait.until(lambda _: "step 99 is not in the plan" in text("message"))
+    assert browser.find_element("id", "message").value_of_css_property("color") == "rgba(170, 0, 0, 1)"
+    shoot(browser, tmp_path, "review_page_refused.png", "message")
+    shown = json.load(urllib.request.urlopen(url + "api/state", timeout=10))["plan"]
+    assert approve(browser) == (shown["futures"]["death_share"] >= 0.5)
     approve_until_reported(browser, wait, approved)
     report = browser.find_element("id", "report-title").text
     assert report.startswith("report of review newall-test:") and ", plan " in report and "real return" in report
     assert painted_cells(browser, "real") >= 2 and painted_cells(browser, "planned") >= 2
     shoot(browser, tmp_path, "review_page_report.png")
-    # An answer to a review that is over is refused, and the page says so in red beside the controls.
-    browser.find_element("id", "abort").click()
-    wait.until(lambda _: "is over (its report is out)" in text("message"))
-    assert browser.find_element("id", "message").value_of_css_property("color") == "rgba(170, 0, 0, 1)"
-    shoot(browser, tmp_path, "review_page_refused.png", "message")
+    # The review is over: its answers are off, and the page says why; the planner refuses one anyway.
+    assert all(browser.find_element("id", b).get_attribute("disabled") for b in ("approve", "reject", "abort"))
+    assert browser.find_element("id", "over").is_displayed()
+    late = urllib.request.Request(
+        url + "api/feedback",
+        data=json.dumps({"review_id": report_review(report), "plan_id": 1, "decision": "abort"}).encode(),
+        headers={"Content-Type": "application/json"},
+    )
+    with pytest.raises(urllib.error.HTTPError) as refused:
+        urllib.request.urlopen(late, timeout=30)
+    assert refused.value.code == 400 and "is over (its report is out)" in json.load(refused.value)["error"]
 
     # The history (the ledger, read by the page's server) lists the review with its report.
     review_id = title().split(" of review ")[1].split()[0]
@@ -432,7 +464,7 @@ def test_the_page_survives_node_restarts(page_system, browser):
     title = text("plan-title")
     restart("lwm_nodes.planner_node")
     assert text("plan-title") == title and text("status").startswith("live ·")
-    browser.find_element("id", "approve").click()
+    approve(browser)
     # The page says what became of it: kept for the planner, taken, or not answered yet.
     answers = ("kept until review", "approved: the agent now acts", "has not answered in")
     wait.until(lambda _: any(a in text("message") for a in answers))
