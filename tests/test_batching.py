@@ -142,14 +142,15 @@ def test_closing_answers_the_waiting_requests_at_once(sim):
     with sim.lock:  # the worker blocks on its first batch (request 0) until the server is closed
         threads = [threading.Thread(target=client, args=(0,))]
         threads[0].start()
-        time.sleep(0.5)
+        # Request 0 handed over and taken off the queue by the worker, which now waits for the lock.
+        assert wait_until(lambda: server.submitted == 1 and server._queue.empty())
         threads += [threading.Thread(target=client, args=(i,)) for i in range(1, 6)]
         for t in threads[1:]:
             t.start()
-        time.sleep(0.5)  # requests 1-5 wait in the queue
+        assert wait_until(lambda: server.submitted == 6)  # requests 1-5 wait in the queue
         closing = threading.Thread(target=server.close)
         closing.start()
-        time.sleep(0.2)
+        assert wait_until(lambda: server._closed.is_set())
     began = time.perf_counter()
     for t in threads:
         t.join(10)

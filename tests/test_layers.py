@@ -13,11 +13,11 @@ CORE = Path(__file__).resolve().parent.parent / "lwm_models"
 # formats, the review ledger and the feedback signatures on those; the world models on all of these;
 # the agent on the world models; the command line on everything.
 LAYERS = [
-    {"errors", "stats"},
+    {"errors", "stats", "run_dirs"},
     {"messenger"},
     {"text"},
     {"data"},
-    {"messages", "ledger", "signing", "recording", "run_dirs"},
+    {"messages", "ledger", "signing", "recording"},
     {"world"},
     {"agent"},
     {"cli"},

@@ -162,14 +162,19 @@ def test_environment_reset_and_step(system):
     assert not bad["ok"] and "env_step_request: action" in bad["error"]
 
 
-def watch_errors(system, timeout: float) -> tuple[subprocess.Popen, list[str]]:
-    """`lwm ros echo /lwm/errors` in the background: the process, and the lines it has printed."""
+def watch_errors(system, timeout: float, publishers: int = 3) -> tuple[subprocess.Popen, list[str]]:
+    """`lwm ros echo /lwm/errors` in the background, once it has matched the nodes that report
+    errors (env, simulator, planner: an event, not a sleep): the process, and the lines it prints."""
     errors = subprocess.Popen(
-        [sys.executable, "-m", "lwm_models.cli.main", "ros", "echo", "/lwm/errors", "--timeout", str(timeout)],
+        [sys.executable, "-m", "lwm_models.cli.main", "ros", "echo", "/lwm/errors", "--timeout", str(timeout)]
+        + ["--wait-publishers", str(publishers)],
         stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
         text=True,
         env=system["env"],
     )
+    ready = errors.stderr.readline()
+    assert ready.startswith(f"# listening to {publishers} publisher(s)"), ready
     lines: list[str] = []
     threading.Thread(target=lambda: lines.extend(errors.stdout), daemon=True).start()
     return errors, lines
@@ -214,14 +219,8 @@ def test_malformed_payloads_get_errors_and_the_nodes_keep_serving(system):
         ("messenger_env", "/env/reset"),
         ("messenger_env", "/env/step"),
     }
-    errors = subprocess.Popen(
-        [sys.executable, "-m", "lwm_models.cli.main", "ros", "echo", "/lwm/errors", "--timeout", "90"],
-        stdout=subprocess.PIPE,
-        text=True,
-        env=system["env"],
-    )
+    errors, lines = watch_errors(system, 90, publishers=4)  # and the human node's
     try:
-        time.sleep(2.0)
         plan = latched(system, "/planner/plan")
         base = {"version": 2, "review_id": plan["review_id"]}
         for topic, payload in [
@@ -273,10 +272,6 @@ def test_malformed_payloads_get_errors_and_the_nodes_keep_serving(system):
         assert not bad["ok"]
         bad = call(system, "/env/step", '{"action": "up"}')
         assert not bad["ok"]
-
-        lines: list[str] = []
-        reader = threading.Thread(target=lambda: lines.extend(errors.stdout), daemon=True)
-        reader.start()
 
         def reports() -> list[dict]:
             return [json.loads(line) for line in list(lines) if line.strip()]
@@ -367,7 +362,6 @@ def test_bad_labels_get_errors_and_change_nothing_then_a_fixed_resend_is_taken(s
     base = {"version": 2, "review_id": request["review_id"], "request_id": request["request_id"]}
     errors, lines = watch_errors(system, 60)
     try:
-        time.sleep(2.0)
         bad = [
             ({**base, "states": [0, 1], "actions": [3]}, "one action per state"),
             ({**base, "states": [n], "actions": [3]}, "never shown"),
@@ -442,7 +436,6 @@ def test_only_a_trusted_reviewer_can_approve(system, tmp_path):
         return [r["payload"] for r in records if r["kind"] in ("feedback", "report")]
 
     try:
-        time.sleep(2.0)
         rogues = [
             ([], "unsigned review_feedback (no reviewer named)"),
             (["--sign", "terminal", "--keys-file", str(rogue_keys)], "from reviewer 'terminal': bad signature"),

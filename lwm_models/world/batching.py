@@ -64,6 +64,7 @@ class ImagineServer:
         self.sim = sim
         self.batch = ContinuousBatch(sim.model, max_trajectories)
         self.requests = 0  # one-shot requests answered: for status and benchmarks
+        self.submitted = 0  # one-shot requests handed to the batch (tests wait on it, not on time)
         self._queue: queue.SimpleQueue[_Job | None] = queue.SimpleQueue()
         self._closed = threading.Event()
         self._worker = threading.Thread(target=self._work, name="imagine-batcher", daemon=True)
@@ -93,6 +94,7 @@ class ImagineServer:
         """Queue a one-shot request; returns its job and the thread that will finish it."""
         job = _Job(request, self.sim.trajectory_count(request))
         self._queue.put(job)
+        self.submitted += 1
         return job, self._worker
 
     def _response(self, job: _Job) -> dict:

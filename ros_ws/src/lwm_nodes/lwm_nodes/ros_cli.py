@@ -192,7 +192,14 @@ def cmd_echo(node: Node, args) -> int:
         # A burst of messages (a recording played back fast) must not be thinned to the newest
         # while this process is busy printing: keep as many as are asked for.
         qos = QoSProfile(history=qos.history, depth=args.count, reliability=qos.reliability, durability=qos.durability)
-    node.create_subscription(String, args.topic, callback, qos)
+    sub = node.create_subscription(String, args.topic, callback, qos)
+    if args.wait_publishers:
+        # Say when the publishers are matched, so that a caller can send what it wants to see
+        # echoed then, rather than after a guessed sleep.
+        deadline = time.monotonic() + (args.timeout if args.timeout > 0 else 30.0)
+        while sub.get_publisher_count() < args.wait_publishers and time.monotonic() < deadline:
+            time.sleep(0.02)
+        print(f"# listening to {sub.get_publisher_count()} publisher(s) of {args.topic}", file=sys.stderr, flush=True)
     done.wait(args.timeout if args.timeout > 0 else None)
     return 0 if got or not args.count else 1
 
@@ -313,6 +320,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     s.add_argument("--count", type=int, default=0, help="stop after N messages (0: until timeout)")
     s.add_argument("--timeout", type=float, default=10.0, help="seconds (0: forever)")
     s.add_argument("--latched", action="store_true", help="transient-local QoS, to get the last latched message")
+    s.add_argument(
+        "--wait-publishers",
+        type=int,
+        default=0,
+        metavar="N",
+        help="print '# listening ...' on stderr once N publishers are matched (or the timeout passed)",
+    )
     s = sub.add_parser("call", help="call a JSON service")
     s.add_argument("service", help="service name, e.g. /lwm/imagine")
     s.add_argument("payload", help="JSON text, or @FILE")
