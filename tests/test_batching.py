@@ -238,9 +238,9 @@ def test_closing_the_worker_server_answers_every_call_within_its_deadline(sim):
     for t in threads:
         t.join(10)
     took = time.perf_counter() - began
-    # The bound: 0.3 s of grace, then a kill; a ROS node has 2 s in all to stop. Measured under a
-    # CPU burner on one core of this 2-core machine: at most 0.5 s in 40 runs (scripts/stress_ci.sh).
-    assert took < 1.5 and sorted(results) == [0, 1, 2, 3, 4], (took, sorted(results))
+    # The bound is the simulator node's: it must have stopped 2 s after the signal. Measured (20
+    # closes while scripts/stress_ci.sh ran the suite beside a CPU burner): median 0.54 s, max 0.98 s.
+    assert took < 2.0 and sorted(results) == [0, 1, 2, 3, 4], (took, sorted(results))
     refused = [i for i, (text, error) in results.items() if error is not None and "shutting down" in text]
     answered = [i for i, (text, error) in results.items() if error is None and json.loads(text)["ok"]]
     assert len(refused) + len(answered) == 5, {i: text[:120] for i, (text, _) in results.items()}

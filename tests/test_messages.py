@@ -112,3 +112,66 @@ def test_real_states_must_be_game_states_and_imagined_ones_need_not():
     plan = copy.deepcopy(messages.schema("plan")["examples"][0])
     plan["observations"][-1][0] = list(plan["observations"][-1][1])  # an entity imagined twice
     messages.validate("plan", plan)
+
+
+FEEDBACK = {"version": 2, "review_id": "newall-test:0:0", "plan_id": 1}
+MANUAL_V = messages.version("manual")
+LABELS = {"version": messages.version("labels"), "review_id": "newall-test:0:0", "request_id": 1}
+
+
+@pytest.mark.parametrize(
+    ("kind", "payload", "said"),
+    [
+        ("review_feedback", {**FEEDBACK, "decision": "approve", "plan_id": 0}, "the plan number must be at least 1"),
+        ("review_feedback", {**FEEDBACK, "decision": "yes"}, "the decision must be one of 'approve', 'reject'"),
+        ("review_feedback", {**FEEDBACK, "decision": "corrections"}, "'corrections' is missing"),
+        (
+            "review_feedback",
+            {**FEEDBACK, "decision": "corrections", "corrections": [{"step": 1, "action": 7}]},
+            "correction 1: an action is 0 up, 1 down, 2 left, 3 right or 4 stay",
+        ),
+        (
+            "review_feedback",
+            {**FEEDBACK, "decision": "corrections", "corrections": [{"step": 0, "action": 1}]},
+            "correction 1: steps are counted from 1",
+        ),
+        ("review_feedback", {**FEEDBACK, "decision": "approve", "mood": 1}, "'mood' is not something this message"),
+        ("review_feedback", {**FEEDBACK, "decision": "approve", "version": 1}, "another version of the system"),
+        ("manual", {"version": MANUAL_V, "descriptions": ["one"]}, "the manual needs 3 descriptions"),
+        ("manual", {"version": MANUAL_V, "descriptions": ["a", "b", "c", "d"]}, "the manual takes 3 descriptions"),
+        ("manual", {"version": MANUAL_V, "descriptions": ["a", "  ", "c"]}, "description 2 is empty"),
+        ("manual", {"version": MANUAL_V, "descriptions": ["a", "b", "c" * 3000]}, "description 3 is over 2000"),
+        ("labels", {**LABELS, "states": [0], "actions": [9]}, "label 1: an action is 0 up, 1 down"),
+        ("labels", {**LABELS, "states": "0", "actions": [1]}, "the labelled states must be a list"),
+        ("labels", {**LABELS, "states": [0]}, "'actions' is missing"),
+    ],
+)
+def test_every_refusal_a_person_can_cause_is_said_in_plain_words(kind, payload, said):
+    with pytest.raises(messages.MessageError) as refused:
+        messages.validate(kind, payload)
+    reason = messages.plain_reason(refused.value)
+    assert said in reason, reason
+    assert reason.startswith({"review_feedback": "the answer", "manual": "the manual", "labels": "the labels"}[kind])
+    for jargon in ("must match pattern", "properties", "const definition", "(top level)", "Error"):
+        assert jargon not in reason, reason
+
+
+@pytest.mark.parametrize(
+    ("text", "said"),
+    [("{not json", "it is not JSON (check the quotes and brackets)"), ("[1, 2]", "it is not a JSON object")],
+)
+def test_text_that_is_no_message_is_refused_in_plain_words(text, said):
+    with pytest.raises(messages.MessageError) as refused:
+        messages.parse("manual", text)
+    assert messages.plain_reason(refused.value) == f"the manual was refused: {said}"
+
+
+def test_the_systems_own_refusals_keep_their_words_and_a_crash_is_named():
+    from lwm_models.agent.agent import FeedbackError
+
+    assert messages.plain_reason(FeedbackError("step 99 is not in the plan (steps 1..12)")) == (
+        "step 99 is not in the plan (steps 1..12)"
+    )
+    assert messages.plain_reason(KeyError("x")).startswith("it could not be taken (KeyError")
+    assert messages.msg_id_of('{"msg_id": "page-1", "x": [}') is None
+    assert messages.msg_id_of('{"msg_id": "page-1"}') == "page-1"
