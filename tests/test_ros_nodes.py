@@ -514,6 +514,37 @@ def test_the_terminal_review_shows_answers_refusals_and_takes_a_correction(syste
     assert human.returncode == 0
 
 
+def test_a_stop_ends_the_teaching_within_2_s_and_the_ledger_stays_consistent(system):
+    """Teaching (online imitation) asks a person round after round; "stop" ends it at once: no
+    label request after it, the policy learnt so far saved within 2 s, and a new plan from it."""
+    assert call(system, "/env/reset", {"seed": 31})["ok"]
+    plan = wait_for(lambda: (p := latched(system, "/planner/plan"))["review_id"].endswith(":31") and p, timeout=60)
+    assert plan, "no plan for the reset episode"
+    base = {"version": 2, "review_id": plan["review_id"], "plan_id": plan["plan_id"]}
+    sent = lwm_ros(system, "pub", "/review/feedback", json.dumps({**base, "decision": "imitate", "rounds": 40}),
+                   "--kind", "review_feedback", *signed(system))  # fmt: skip
+    assert sent.returncode == 0 and "teaching started" in sent.stdout, sent.stderr
+    request = wait_for(
+        lambda: (r := latched(system, "/planner/label_request"))["review_id"] == plan["review_id"] and r, timeout=60
+    )
+    assert request and request["rounds"] == 40
+    stop = json.dumps({**base, "decision": "stop"})
+    sent = lwm_ros(system, "pub", "/review/feedback", stop, "--kind", "review_feedback", *signed(system))
+    assert sent.returncode == 0 and "teaching stops now" in sent.stdout, sent.stderr
+    revised = wait_for(lambda: (p := latched(system, "/planner/plan"))["plan_id"] > plan["plan_id"] and p, timeout=60)
+    assert revised and revised["reason"] == "imitation" and revised["review_id"] == plan["review_id"]
+    records = Ledger(system["tmp"] / "ledger.sqlite").history(plan["review_id"])
+    at = next(i for i, r in enumerate(records) if r["kind"] == "feedback" and r["payload"]["decision"] == "stop")
+    after = [r["kind"] for r in records[at + 1 :]]
+    assert "label_request" not in after and after[:2] == ["policy", "plan"], after
+    took = records[at + 1]["time"] - records[at]["time"]
+    print(f"the teaching ended {took:.2f} s after the stop")
+    assert took < 2.0, f"the teaching ended {took:.2f} s after the stop"
+    later = json.dumps({**base, "plan_id": revised["plan_id"], "decision": "stop"})  # nothing to stop now
+    again = lwm_ros(system, "pub", "/review/feedback", later, "--kind", "review_feedback", *signed(system))
+    assert again.returncode == 1 and "no teaching under way" in again.stderr, again.stderr
+
+
 def start_scripted(tmp_path: Path, *extra: str) -> tuple[subprocess.Popen, dict, Path]:
     """The launcher with the scripted human, in its own ROS domain; returns (process, env, ledger)."""
     env = {

@@ -67,6 +67,7 @@ TAKEN = {
     "demonstrations": "demonstrations taken: the agent learns them and re-plans",
     "abort": "plan {plan} aborted: nothing is executed",
 }
+STOP_TAKEN = "teaching stops now: the agent keeps what it has learnt and re-plans"
 
 
 @dataclass
@@ -134,6 +135,8 @@ class Review:
     labels_in: threading.Event = field(default_factory=threading.Event)
     execution: Execution | None = None
     learned: dict = field(default_factory=lambda: {"corrections": 0, "imitation_rounds": 0, "demonstrations": 0})
+    teaching: bool = False  # an online imitation is under way (a "stop" ends it)
+    stop_teaching: threading.Event = field(default_factory=threading.Event)
 
 
 def game_of(episode_id: str) -> str:
@@ -217,6 +220,8 @@ class ReviewLoop:
             decision = msg["decision"]
             if (msg["plan_id"], decision) in r.answered:
                 return f"{decision} of plan {msg['plan_id']} was taken already"  # delivered again after a restart
+            if decision == "stop":
+                return self._stop_teaching(r, msg)
             if r.phase == "done":
                 raise FeedbackError(
                     f"review {r.review_id} is over (its report is out); start the next episode to review again"
@@ -236,6 +241,18 @@ class ReviewLoop:
             r.phase = "executing" if decision == "approve" else "done" if decision == "abort" else "planning"
             self._submit(lambda: self._take(r, msg, record))
             return TAKEN[decision].format(plan=msg["plan_id"])
+
+    def _stop_teaching(self, r: Review, msg: dict) -> str:
+        """End the online imitation under way at once (called with the lock held): the round
+        waiting for labels ends without them, no new round starts, and the agent re-plans with
+        what it learnt so far."""
+        if not r.teaching:
+            raise FeedbackError("there is no teaching under way to stop")
+        self.ledger.record(r.review_id, "feedback", msg)
+        r.answered.add((msg["plan_id"], "stop"))
+        r.stop_teaching.set()
+        r.labels_in.set()  # the round waiting for labels ends now
+        return STOP_TAKEN
 
     def on_labels(self, msg: dict) -> str:
         """Take the labels of the open label request; returns what was taken."""
@@ -428,6 +445,9 @@ class ReviewLoop:
         def label_round(im, round_no: int):
             hist, obs, steps, traj = imagined_states(im, self.config.max_steps)
             with self.lock:
+                if r.stop_teaching.is_set():  # stopped while this round was imagined: ask for nothing
+                    stop["now"] = True
+                    return hist[:0], np.zeros(0, dtype=np.int64)
                 r.requests += 1
                 r.labels_in.clear()
                 r.labels = None
@@ -452,6 +472,10 @@ class ReviewLoop:
             got = r.labels_in.wait(self.config.label_timeout)
             with self.lock:
                 labels, r.labels, r.request = r.labels, None, None
+            if r.stop_teaching.is_set():
+                stop["now"] = True
+                self.ports.log(f"review {r.review_id}: the reviewer stopped the teaching at round {round_no}")
+                return hist[:0], np.zeros(0, dtype=np.int64)
             if not got or labels is None:
                 stop["now"] = True
                 self.ports.log(f"review {r.review_id}: no labels for request {request['request_id']}; imitation ends")
@@ -462,14 +486,23 @@ class ReviewLoop:
 
         timings: dict[str, float] = {}
         began = time.perf_counter()
-        r.agent.imitate(
-            label_round,
-            starts,
-            budget,
-            seed=r.seed * 1000 + r.plans,
-            should_stop=lambda: stop["now"] or self.closing.is_set() or self.review is not r,
-            timings=timings,
-        )
+        with self.lock:
+            r.teaching = True
+            r.stop_teaching.clear()
+        try:
+            r.agent.imitate(
+                label_round,
+                starts,
+                budget,
+                seed=r.seed * 1000 + r.plans,
+                should_stop=lambda: (
+                    stop["now"] or r.stop_teaching.is_set() or self.closing.is_set() or self.review is not r
+                ),
+                timings=timings,
+            )
+        finally:
+            with self.lock:
+                r.teaching = False
         spent = ", ".join(f"{k} {v:.1f} s" for k, v in timings.items())
         self.ports.log(f"review {r.review_id}: imitation took {time.perf_counter() - began:.1f} s ({spent})")
 
@@ -625,6 +658,8 @@ class ReviewLoop:
                 r.plans = max(r.plans, p["plan_id"])
             elif kind == "feedback":
                 r.answered.add((p["plan_id"], p["decision"]))
+                if p["decision"] == "stop":
+                    continue  # it ended a teaching; the teaching's own feedback is what to redo
                 pending = (rec["id"], p)
                 if p["decision"] not in ("approve", "abort"):
                     r.revisions += 1

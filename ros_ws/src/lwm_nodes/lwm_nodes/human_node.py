@@ -6,6 +6,7 @@ futures, then
     r                 reject (the planner imagines again)
     c STEP:ACTION ... corrections, e.g. "c 1:3 2:3" (actions 0 up, 1 down, 2 left, 3 right, 4 stay)
     i [ROUNDS]        online imitation: the planner imagines rounds of episodes and asks for labels
+    stop              end the online imitation under way (the agent keeps what it learnt, re-plans)
     l STATE:ACTION ...  label states of the current label request ("l -" sends none); one answer
                       per request, before the planner stops waiting (the request's timeout)
     x                 abort: execute nothing
@@ -289,7 +290,7 @@ class HumanNode(JsonNode):
             print(
                 f"label request {request['request_id']} (round {request['round']}/{request['rounds']}): {n} imagined "
                 f"states; label the ones you are sure of with l STATE:ACTION ... (states 0..{n - 1}), l - for none; "
-                f"the planner waits {waits:.0f} s",
+                f"the planner waits {waits:.0f} s; stop ends the teaching",
                 flush=True,
             )
             self.show_state(0)
@@ -340,7 +341,12 @@ class HumanNode(JsonNode):
         allowed = ("review_id", "plan_id", "decision", "corrections", "rounds")
         msg_id = self.publish_feedback({k: v for k, v in body.items() if k in allowed})
         self.get_logger().info(f"page: {body.get('decision')} on plan {body.get('plan_id')}")
-        return self._page_answer(msg_id, "the planner")
+        said = self._page_answer(msg_id, "the planner")
+        if body.get("decision") == "stop":  # the planner waits for no more labels: nothing to label
+            with self.labels_lock:
+                self.request = None
+            self.page.push("label_request", None)
+        return said
 
     def _page_answer(self, msg_id: str, who: str) -> str:
         ack = self.answer_to(msg_id)
@@ -476,6 +482,8 @@ class HumanNode(JsonNode):
             self.publish_feedback({**base, "decision": "reject"})
         elif line == "x":
             self.publish_feedback({**base, "decision": "abort"})
+        elif line == "stop":
+            self.publish_feedback({**base, "decision": "stop"})
         elif line.split()[0] == "i":
             rounds = line.split()[1:]
             self.publish_feedback({**base, "decision": "imitate", **({"rounds": int(rounds[0])} if rounds else {})})
