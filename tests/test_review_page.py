@@ -206,6 +206,15 @@ def test_review_in_the_browser(page_system, browser):
     ledger.close()
     assert taken == [{"request_id": 1, "labels": 5}, {"request_id": 2, "labels": 2}]  # what the planner took
 
+    # Teaching again, stopped at its first round: no labels asked any more, and a plan from what was learnt.
+    before = title().split()[1]
+    browser.find_element("id", "imitate").click()
+    wait.until(lambda _: text("labels-title").startswith("label request 3 (round 1/2"))
+    browser.find_element("id", "stop-teaching").click()
+    wait.until(lambda _: "teaching stops now" in text("message"))
+    wait.until(lambda _: "(imitation)" in title() and title().split()[1] != before)
+    assert not browser.find_element("id", "labels").is_displayed()
+
     approved = title()
     # A correction the planner refuses: the reason, in red, beside the controls.
     browser.find_element("id", "corrections").clear()
