@@ -56,6 +56,7 @@ def page_system(tmp_path):
         "ROS_LOG_DIR": str(tmp_path / "roslog"),
     }
     cmd = [sys.executable, "-m", "lwm_nodes.launcher", "--page", str(port), "--quiet", "--iterations", "2"]
+    cmd += ["--reviewer", "alice"]  # a person of their own, with their own key
     cmd += ["--log-dir", str(tmp_path / "logs"), "--ledger", str(tmp_path / "ledger.sqlite")]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
     url = None
@@ -151,6 +152,7 @@ def test_review_in_the_browser(page_system, browser):
     assert title().endswith("imagined with only moves the game allows")  # the default: constrained plans
     assert " the plan " in title() and ("dies at step" in title() or "wins at step" in title() or "runs" in title())
     assert len(browser.find_elements("css selector", "#legend div")) == 3
+    assert 'you answer as reviewer "alice"' in browser.find_element("id", "reviewer").text
     shoot(browser, tmp_path, "review_page_plan.png")
 
     # Language feedback from the page: the enemy's description reworded.
@@ -248,9 +250,13 @@ def test_review_in_the_browser(page_system, browser):
     row = browser.find_element("css selector", "#reviews tr.review")
     assert row.text.startswith(review_id) and report.split(": ")[1].split(",")[0] in row.text  # the outcome
     records = text("records")
-    for line in ("manual v2 from human", f"plan {imitated}: imitate by terminal", "labels for request 1: 5 state(s)"):
+    for line in ("manual v2 from human", f"plan {imitated}: imitate by alice", "labels for request 1: 5 state(s)"):
         assert line in records
     assert "executed plan" in records.splitlines()[-1]
+    ledger = Ledger(tmp_path / "ledger.sqlite", read_only=True)
+    answers = [r["payload"] for r in ledger.history() if r["kind"] == "feedback"]
+    ledger.close()
+    assert any(a["decision"] == "approve" for a in answers) and {a["reviewer"] for a in answers} == {"alice"}
     browser.find_elements("css selector", "#records div.drawn")[0].click()  # the first plan, drawn again
     assert painted_cells(browser, "history-board") >= 3
     shoot(browser, tmp_path, "review_page_history.png", "history")

@@ -129,6 +129,7 @@ class HumanNode(JsonNode):
                 on_labels=self.on_page_labels,
                 history=self.page_history,
                 on_episode=lambda body: self.next_episode(body.get("seed")),
+                reviewer=signer.reviewer,
             )
             self.json_subscription("/lwm/status", "status", lambda s: self.page.push("status", s), LATCHED)
             print(f"PAGE review page at {self.page.url}", flush=True)

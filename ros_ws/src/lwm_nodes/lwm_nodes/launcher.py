@@ -103,6 +103,7 @@ def default_nodes(
     keys_file: str = "",
     trusted: str = "",
     page_port: int = 0,
+    person: str = "terminal",
 ) -> list[NodeSpec]:
     """human: 'scripted', 'interactive', 'page' (the browser, on page_port; its history reads
     `ledger`) or 'none'. The planner loads no world model: only the simulator gets the checkpoint.
@@ -131,10 +132,11 @@ def default_nodes(
         params = {"scripted": "true", **signs, **(reviewer or {})}
         nodes.append(NodeSpec("human", "lwm_nodes.human_node", params, final=True))
     elif human == "page":
-        page = {"page_port": str(page_port), "ledger": ledger}
+        page = {"page_port": str(page_port), "ledger": ledger, "reviewer": person}
         nodes.append(NodeSpec("human", "lwm_nodes.human_node", {**signs, **page}))
     elif human == "interactive":
-        nodes.append(NodeSpec("human", "lwm_nodes.human_node", {**signs}, interactive=True, final=True))
+        params = {**signs, "reviewer": person}
+        nodes.append(NodeSpec("human", "lwm_nodes.human_node", params, interactive=True, final=True))
     return nodes
 
 
@@ -367,6 +369,12 @@ def main(argv: list[str] | None = None) -> int:
         help="record every topic to this MCAP file (Foxglove and rosbag2's MCAP storage open it; "
         "`lwm ros play` republishes it)",
     )
+    parser.add_argument(
+        "--reviewer",
+        default="terminal",
+        help="who reviews at the terminal or the page: their answers are signed with their own key (made in the "
+        "key file if missing) and the ledger records them by this name",
+    )
     human = parser.add_mutually_exclusive_group()
     human.add_argument("--scripted", action="store_true", help="the simulated human reviews; exits with a summary")
     human.add_argument("--no-human", action="store_true", help="start no human-feedback node")
@@ -411,9 +419,15 @@ def main(argv: list[str] | None = None) -> int:
     keys_file = args.keys_file if args.keys_file is not None else keys_default
     # A new file gets both reviewers; an existing one (perhaps shared across hosts) only gains the
     # one this launch's human node signs as.
-    needed = {"scripted": ["scripted"], "interactive": ["terminal"], "page": ["terminal"]}.get(human, [])
     try:
-        keys = signing.ensure_key_file(keys_file, needed if keys_file.exists() else signing.DEFAULT_REVIEWERS)
+        signing.check_reviewer_id(args.reviewer)
+    except signing.SigningError as exc:
+        parser.error(f"--reviewer: {exc}")
+    needed = {"scripted": ["scripted"], "interactive": [args.reviewer], "page": [args.reviewer]}.get(human, [])
+    try:
+        keys = signing.ensure_key_file(
+            keys_file, needed if keys_file.exists() else sorted({*signing.DEFAULT_REVIEWERS, *needed})
+        )
     except (OSError, signing.SigningError) as exc:
         parser.error(str(exc))
     print(f"launcher: reviewer keys for {', '.join(sorted(keys))} in {keys_file}", flush=True)
@@ -432,6 +446,7 @@ def main(argv: list[str] | None = None) -> int:
         str(keys_file),
         args.trusted,
         args.page or 0,
+        args.reviewer,
     )
     if args.only:
         wanted = {name.strip() for name in args.only.split(",") if name.strip()}

@@ -51,6 +51,7 @@ class ReviewPage:
         on_labels: Callable[[dict], str],
         history: Callable[[str | None], dict],
         on_episode: Callable[[dict], str] | None = None,
+        reviewer: str = "",
     ) -> None:
         self._state: dict[str, dict | None] = dict.fromkeys(self.KINDS)
         self._streams: list[queue.SimpleQueue] = []
@@ -58,6 +59,7 @@ class ReviewPage:
         self._closed = threading.Event()
         self.on_feedback, self.on_manual, self.on_labels, self.history = on_feedback, on_manual, on_labels, history
         self.on_episode = on_episode or _no_episodes
+        self.reviewer = reviewer  # whose key signs the answers (shown on the page)
         self.server = ThreadingHTTPServer((host, port), _handler(self))
         self.server.daemon_threads = True
         threading.Thread(target=self.server.serve_forever, name="review-page", daemon=True).start()
@@ -124,6 +126,8 @@ def _handler(page: ReviewPage) -> type[BaseHTTPRequestHandler]:
                 self._send(HTTPStatus.OK, PAGE.read_bytes(), "text/html; charset=utf-8")
             elif url.path == "/api/state":
                 self._send(HTTPStatus.OK, json.dumps(page.snapshot()).encode(), "application/json")
+            elif url.path == "/api/reviewer":
+                self._send(HTTPStatus.OK, json.dumps({"reviewer": page.reviewer}).encode(), "application/json")
             elif url.path == "/api/events":
                 self._events()
             elif url.path == "/api/history":
