@@ -152,6 +152,9 @@ def test_review_in_the_browser(page_system, browser):
     assert title().endswith("imagined with only moves the game allows")  # the default: constrained plans
     assert " the plan " in title() and ("dies at step" in title() or "wins at step" in title() or "runs" in title())
     assert len(browser.find_elements("css selector", "#legend div")) == 3
+    # Beside what the text says, what the world model imagined of each entity on the board.
+    imagined = [e.text for e in browser.find_elements("css selector", "#imagined div")]
+    assert len(imagined) == 3 and all(": " in line and "; " in line for line in imagined), imagined
     assert 'you answer as reviewer "alice"' in browser.find_element("id", "reviewer").text
     shoot(browser, tmp_path, "review_page_plan.png")
 

@@ -29,6 +29,7 @@ from ..world.imagine import Imagination
 from ..world.manual import ManualError
 from .learning import Budget, LabelledSet, RoundLabeller, fit_labels, online_imitation
 from .policy import EmmaPolicy, act, policy_manual, stack_history
+from .understood import read_back
 
 
 class FeedbackError(LwmError, ValueError):
@@ -48,6 +49,7 @@ class Plan:
     agreement: list[float] = field(default_factory=list)
     futures: dict = field(default_factory=dict)
     start_step: int = 0
+    understood: list = field(default_factory=list)  # per entity: its imagined behaviour (understood.py)
 
     def to_json(self) -> dict:
         return dict(self.__dict__)
@@ -107,6 +109,7 @@ def plan_from(im: Imagination, plan_id: int, start_step: int = 0) -> Plan:
             "lengths": [int(x) - 1 for x in im.lengths[1:]],
         },
         start_step=start_step,
+        understood=read_back(im.observations, im.rewards, im.lengths),
     )
 
 

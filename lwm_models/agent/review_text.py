@@ -15,6 +15,7 @@ import numpy as np
 from ..messenger.constants import ACTION_NAMES
 from ..messenger.render import legend as board_legend
 from ..messenger.render import render_ascii
+from .understood import describe
 
 ACTIONS_KEY = "actions: " + "  ".join(f"{i} {name}" for i, name in enumerate(ACTION_NAMES))
 
@@ -55,6 +56,8 @@ def plan_text(plan: dict, frames: str = "ends") -> str:
         return "\n".join(lines)
     first = np.asarray(plan["observations"][0], dtype=np.uint8)
     lines += [f"board: {board_legend(first)}", ACTIONS_KEY]
+    for entry in plan.get("understood", []):  # what the world model made of the manual
+        lines.append(f"imagined {entry['identity']}: {describe(entry)}")
     steps = []
     for t, action in enumerate(plan["actions"], 1):
         said = step_event(plan["rewards"][t - 1], plan["dones"][t - 1])

@@ -15,6 +15,7 @@ import numpy as np
 from ..ledger import headline
 from ..messenger.render import board, identity_style
 from ..text.parser import parse_description
+from .understood import describe
 
 
 def frames(observations: Sequence) -> list[list[dict]]:
@@ -40,8 +41,13 @@ def legend(descriptions: Sequence[str]) -> list[dict]:
 
 
 def plan_view(plan: dict) -> dict:
-    """A plan message with its frames and its manual's legend."""
-    return {**plan, "frames": frames(plan["observations"]), "legend": legend(plan["manual"])}
+    """A plan message with its frames, its manual's legend (as the parser reads the text) and what
+    the world model imagined of each entity (as the plan and its futures show it)."""
+    imagined = []
+    for entry in plan.get("understood", []):
+        letter, colour = identity_style(entry["identity"])
+        imagined.append({"identity": entry["identity"], "letter": letter, "colour": colour, "said": describe(entry)})
+    return {**plan, "frames": frames(plan["observations"]), "legend": legend(plan["manual"]), "imagined": imagined}
 
 
 def report_view(report: dict) -> dict:
