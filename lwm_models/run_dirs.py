@@ -54,7 +54,7 @@ def latest_run_dir(root: Path = LOGS) -> Path | None:
     return link.resolve() if link.is_dir() else None
 
 
-def earlier_run_files(run_dir: Path, ledger: Path, state: Path) -> list[Path]:
+def earlier_run_files(ledger: Path, state: Path) -> list[Path]:
     """What an earlier run left that a new one would silently continue: a ledger with records,
     and the simulator's saved manual."""
     found = []

@@ -446,7 +446,6 @@ class ReviewLoop:
             hist, obs, steps, traj = imagined_states(im, self.config.max_steps)
             with self.lock:
                 if r.stop_teaching.is_set():  # stopped while this round was imagined: ask for nothing
-                    stop["now"] = True
                     return hist[:0], np.zeros(0, dtype=np.int64)
                 r.requests += 1
                 r.labels_in.clear()
@@ -472,8 +471,7 @@ class ReviewLoop:
             got = r.labels_in.wait(self.config.label_timeout)
             with self.lock:
                 labels, r.labels, r.request = r.labels, None, None
-            if r.stop_teaching.is_set():
-                stop["now"] = True
+            if r.stop_teaching.is_set():  # should_stop sees it before the next round
                 self.ports.log(f"review {r.review_id}: the reviewer stopped the teaching at round {round_no}")
                 return hist[:0], np.zeros(0, dtype=np.int64)
             if not got or labels is None:

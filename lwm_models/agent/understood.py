@@ -96,9 +96,9 @@ def _movement(closer: int, farther: int, still: int) -> str:
     moves = closer + farther
     if moves == 0:
         return "stays put" if still else "not seen"
-    if closer >= 2 * max(farther, 1) or (farther == 0 and closer >= 2):
+    if closer >= 2 * max(farther, 1):
         return "comes toward you"
-    if farther >= 2 * max(closer, 1) or (closer == 0 and farther >= 2):
+    if farther >= 2 * max(closer, 1):
         return "moves away from you"
     return "moves, no clear direction"
 

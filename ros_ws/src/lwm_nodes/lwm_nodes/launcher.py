@@ -394,7 +394,7 @@ def main(argv: list[str] | None = None) -> int:
     ledger = Path(args.ledger) if args.ledger else args.log_dir / run_dirs.LEDGER_FILE
     state = Path(args.state) if args.state is not None else args.log_dir / run_dirs.STATE_FILE
     if args.resume is None and (args.only in ("", None) or "planner" in args.only or "simulator" in args.only):
-        earlier = run_dirs.earlier_run_files(args.log_dir, ledger, state)
+        earlier = run_dirs.earlier_run_files(ledger, state)
         if earlier:
             parser.error(
                 f"{', '.join(map(str, earlier))} hold(s) an earlier run's reviews or manual; pass --resume "
