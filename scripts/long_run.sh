@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# One chunk of a long world-model run (issue 10), started again each session until its CPU budget
+# One chunk of a long world-model run, started again each session until its CPU budget
 # is spent: the same command resumes exactly from RUN/last (`lwm train`, see README "Long runs").
 #
 #   scripts/long_run.sh KIND [MAX_MINUTES]     KIND: emma observational standard gpthard oracle
@@ -10,11 +10,9 @@
 # same gradient as one padded batch at ~2.8x the steps per CPU-hour), one thread, NewAll-dev every
 # 1,000 steps on 1,500 episodes, 8 CPU-hours at most.
 # The code that trains is a git worktree of a fixed commit (CODE_COMMIT, in runs/code-long), so
-# that work on main does not change a run half-way. The run lives in runs/long-KIND, which IS in
-# git (last/ with the optimizer state is 11 MB): a session's machine and work tree do not survive
-# to the next, so the resumable state must be committed at the end of each chunk
-# (scripts/keep_run.sh KIND). MAX_MINUTES (default 145) ends this chunk with an evaluation and a
-# save: a session lasts 180 minutes, and the state must be committed before it ends.
+# that work on main does not change a run half-way. The run lives in runs/long-KIND, which git
+# ignores: keep runs/ on a disk that outlives the session to resume it. MAX_MINUTES (default 145)
+# ends this chunk with an evaluation and a save.
 # Runs in the background; progress in runs/long-KIND.log and runs/long-KIND/metrics.jsonl.
 set -euo pipefail
 cd "$(dirname "$0")/.."
