@@ -8,6 +8,7 @@ from pathlib import Path
 
 from . import table3
 from .args import existing_dir, nonnegative_int, positive_float, positive_int
+from .recipes import add_config_option
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -23,6 +24,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=nonnegative_int, default=0, help="seeds the init and the sampling of states")
     p.add_argument("--threads", type=positive_int, default=None, help="torch threads (default: torch's)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_config_option(p)
     p.set_defaults(func=run_pretrain)
 
     table3.register(agent_sub)

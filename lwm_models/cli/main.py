@@ -17,7 +17,7 @@ from collections.abc import Iterable
 from importlib.metadata import EntryPoint, entry_points
 
 from ..errors import LwmError
-from . import agent, data, export, imagine, ledger, parser_accuracy, play, train
+from . import agent, data, export, imagine, ledger, parser_accuracy, play, recipes, train
 from . import eval as evaluate
 from .args import LwmParser
 
@@ -96,7 +96,13 @@ def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     parser = build_parser()
     try:
-        args, rest = parser.parse_known_args(argv)
+        expanded = recipes.expand(parser, argv)
+    except recipes.RecipeError as exc:
+        command = " ".join(t for t in argv[:2] if not t.startswith("-"))
+        print(f"lwm {command}: error: {exc}", file=sys.stderr)
+        return 2
+    try:
+        args, rest = parser.parse_known_args(expanded)
         if rest and not getattr(args, "takes_any_arguments", False):
             parser.error(f"unrecognized arguments: {' '.join(rest)}")
     except SystemExit as exc:  # argparse has printed the help or the one-line error

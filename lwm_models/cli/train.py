@@ -16,6 +16,7 @@ from .args import (
     positive_float,
     positive_int,
 )
+from .recipes import add_config_option
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -61,6 +62,7 @@ def add_arguments(p: LwmParser) -> None:
     extra["preset"] = {"choices": list(PRESETS)}
     extra["eval_split"] = {"choices": list(SPLITS), "metavar": "SPLIT"}
     add_dataclass_arguments(p, TrainArgs, extra=extra)
+    add_config_option(p)
 
 
 def run(args: argparse.Namespace) -> int:
