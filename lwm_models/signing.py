@@ -92,11 +92,16 @@ def sign(kind: str, payload: Mapping, reviewer: str, key: bytes) -> dict:
 
 
 class Keyring:
-    """The reviewers a node trusts, with their keys."""
+    """The reviewers a node trusts, with their keys. A keyring read from a key file (`path`) reads
+    it again when a reviewer it does not know signs and the file changed since: a person who
+    joins a running system (the page's "who is reviewing?", `--reviewer` at a second launch) is
+    trusted without restarting the nodes, and a key removed from the file is then dropped too."""
 
-    def __init__(self, keys: Mapping[str, bytes], source: str = "") -> None:
+    def __init__(self, keys: Mapping[str, bytes], source: str = "", path: str | Path | None = None) -> None:
         self.keys = dict(keys)
         self.source = source  # where the keys came from, for error messages
+        self.path = Path(path) if path is not None else None
+        self._read_at = _changed_at(self.path) if self.path is not None and self.keys else None
 
     def verify(self, kind: str, payload: Mapping, where: str = "") -> str:
         """The reviewer who signed the payload, if this keyring trusts them and the signature is
@@ -110,6 +115,8 @@ class Keyring:
         if not reviewer:
             raise UnsignedPayload(f"{at}signed {kind} names no reviewer")
         key = self.keys.get(reviewer)
+        if key is None and self._reread():
+            key = self.keys.get(reviewer)
         if key is None:
             trusted = ", ".join(sorted(self.keys)) or f"no one: no keys loaded{self._from()}"
             raise UntrustedReviewer(f"{at}{kind} from reviewer {reviewer!r}, who is not trusted (trusted: {trusted})")
@@ -119,8 +126,24 @@ class Keyring:
             )
         return reviewer
 
+    def _reread(self) -> bool:
+        """Read the key file again if it changed since it was read; True when it was. A file that
+        cannot be read now (being replaced, damaged) leaves the keys as they were."""
+        if self.path is None:
+            return False
+        changed = _changed_at(self.path)
+        if changed is None or changed == self._read_at:
+            return False
+        try:
+            self.keys = load_keys(self.path)
+        except KeyFileError:
+            return False
+        self._read_at = changed
+        return True
+
     def only(self, reviewers: Iterable[str]) -> Keyring:
-        """The keyring restricted to these reviewers, each of whom must have a key."""
+        """The keyring restricted to these reviewers, each of whom must have a key (a fixed list:
+        it does not grow when the file does)."""
         chosen = {}
         for r in reviewers:
             if r not in self.keys:
@@ -130,6 +153,15 @@ class Keyring:
 
     def _from(self) -> str:
         return f" in {self.source}" if self.source else ""
+
+
+def _changed_at(path: Path) -> tuple[int, int, int] | None:
+    """What tells a rewritten key file from the one read (it is replaced atomically: a new inode)."""
+    try:
+        st = path.stat()
+    except OSError:
+        return None
+    return st.st_ino, st.st_mtime_ns, st.st_size
 
 
 def load_keys(path: str | Path) -> dict[str, bytes]:

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import tempfile
 import threading
+import time
 
 import numpy as np
 import pytest
@@ -144,7 +145,7 @@ def test_the_scripted_reviewer_never_approves_a_plan_that_dies():
 class LoopHarness:
     """A review loop on the real game and an in-process simulator; feedback from the test."""
 
-    def __init__(self, sim: Simulator, budget: Budget) -> None:
+    def __init__(self, sim: Simulator, budget: Budget, step=None) -> None:
         self.session = GameSession("newall-test", 0)
         self.sim = sim
         self.plans: list[dict] = []
@@ -156,7 +157,7 @@ class LoopHarness:
             self._add("label_request", self.requests),
             self._add("execution_report", self.reports),
             lambda p: self.session.reset(p["seed"]),
-            lambda p: self.session.step(p["action"]),
+            step or (lambda p: self.session.step(p["action"])),
             log=lambda s: None,
         )
         config = ReviewConfig(futures=2, budget=budget, label_timeout=30, max_rereviews=0)
@@ -271,3 +272,41 @@ def test_a_request_that_failed_is_an_error_not_a_retry(sim):
     with pytest.raises(ImagineError, match="repeat an id"):
         bad = np.array([[2, 2, 7], [2, 7, 2], [11, 7, 7], [15, 2, 2]])
         imaginer.rollout(bad, lambda o, i, t: np.zeros(len(i), dtype=int), max_steps=2)
+
+
+def test_a_stop_ends_the_execution_before_the_agent_s_next_move(encoder):
+    """The real game's first step waits until the reviewer has said stop: the agent then makes no
+    further move, and the report says it was stopped, within 2 s."""
+    sim = Simulator(encoder=encoder)
+    entered, release = threading.Event(), threading.Event()
+    h = None
+
+    def gated_step(p):
+        if h.session.env.t == 0:
+            entered.set()
+            assert release.wait(60)
+        return h.session.step(p["action"])
+
+    h = LoopHarness(sim, Budget(iterations=1, episodes=2, grad_steps=2), step=gated_step)
+    state = h.session.reset(0)
+    sim.take_env_manual(h.session.manual()["descriptions"], state["episode_id"])
+    h.loop.on_status(sim.status())
+    h.loop.on_state(state)
+    plan = h.wait(h.plans, 1)
+    base = {"review_id": plan["review_id"], "plan_id": plan["plan_id"]}
+    with pytest.raises(FeedbackError, match="nothing under way to stop"):
+        h.loop.on_feedback({**base, "decision": "stop"})
+    h.loop.on_feedback({**base, "decision": "approve"})
+    assert entered.wait(60), "the execution never stepped the game"
+    said = h.loop.on_feedback({**base, "decision": "stop"})
+    asked = time.monotonic()
+    release.set()
+    report = h.wait(h.reports, 1)
+    assert time.monotonic() - asked < 2.0
+    assert "stops playing" in said and report["outcome"] == "stopped"
+    assert report["steps"] == h.session.env.t == 1 and len(report["observations"]) == 2
+    answers = [r["payload"]["decision"] for r in h.ledger.history() if r["kind"] == "feedback"]
+    assert answers == ["approve", "stop"] and h.ledger.history()[-1]["kind"] == "report"
+    with pytest.raises(FeedbackError, match="is over"):
+        h.loop.on_feedback({**base, "plan_id": 9, "decision": "reject"})
+    h.loop.close()

@@ -118,3 +118,32 @@ def test_a_key_file_others_can_read_or_a_malformed_one_is_refused(tmp_path):
         os.chmod(path, 0o600)
         with pytest.raises(signing.KeyFileError, match=why):
             signing.load_keys(path)
+
+
+def test_a_reviewer_added_to_the_key_file_later_is_trusted_without_a_restart(tmp_path):
+    """A person who joins a running system (the page's "who is reviewing?") gets a key in the file;
+    the planner's keyring, read at its start, reads the file again when it first sees them."""
+    path = tmp_path / "keys.json"
+    signing.ensure_key_file(path)
+    keyring = signing.Keyring(signing.load_keys(path), str(path), path)
+    restricted = keyring.only(["terminal"])
+    bob = signing.ensure_key_file(path, ["bob"])["bob"]
+    payload = signing.sign("review_feedback", APPROVE, "bob", bob)
+    assert keyring.verify("review_feedback", payload) == "bob"
+    with pytest.raises(signing.UntrustedReviewer, match="'bob', who is not trusted"):
+        restricted.verify("review_feedback", payload)  # a fixed list of trusted reviewers stays fixed
+    # A key removed from the file is dropped at the next reread; an unchanged file is not read again.
+    keys = signing.load_keys(path)
+    del keys["bob"]
+    signing._write(path, keys, replace=True)
+    carol = signing.ensure_key_file(path, ["carol"])["carol"]
+    assert keyring.verify("review_feedback", signing.sign("review_feedback", APPROVE, "carol", carol)) == "carol"
+    with pytest.raises(signing.UntrustedReviewer):
+        keyring.verify("review_feedback", payload)
+
+
+def test_a_keyring_without_its_file_trusts_the_file_once_it_is_made(tmp_path):
+    path = tmp_path / "keys.json"
+    keyring = signing.Keyring({}, f"{path} (missing)", path)
+    key = signing.ensure_key_file(path, ["alice"])["alice"]
+    assert keyring.verify("review_feedback", signing.sign("review_feedback", APPROVE, "alice", key)) == "alice"

@@ -34,6 +34,7 @@ import numpy as np
 from safetensors.numpy import load_file as load_arrays
 from safetensors.numpy import save_file as save_arrays
 
+from ..data.episode import Episode, game_of
 from ..errors import LwmError
 from ..ledger import Ledger
 from .agent import Correction, FeedbackError, Plan, PlanReviewAgent, start_observations_like
@@ -68,6 +69,7 @@ TAKEN = {
     "abort": "plan {plan} aborted: nothing is executed",
 }
 STOP_TAKEN = "teaching stops now: the agent keeps what it has learnt and re-plans"
+STOP_EXECUTION_TAKEN = "the agent stops playing before its next move: a report of what it did follows"
 
 
 @dataclass
@@ -137,10 +139,7 @@ class Review:
     learned: dict = field(default_factory=lambda: {"corrections": 0, "imitation_rounds": 0, "demonstrations": 0})
     teaching: bool = False  # an online imitation is under way (a "stop" ends it)
     stop_teaching: threading.Event = field(default_factory=threading.Event)
-
-
-def game_of(episode_id: str) -> str:
-    return episode_id.rsplit(":", 1)[0]
+    stop_execution: threading.Event = field(default_factory=threading.Event)  # a "stop" while executing
 
 
 class ReviewLoop:
@@ -221,7 +220,7 @@ class ReviewLoop:
             if (msg["plan_id"], decision) in r.answered:
                 return f"{decision} of plan {msg['plan_id']} was taken already"  # delivered again after a restart
             if decision == "stop":
-                return self._stop_teaching(r, msg)
+                return self._stop(r, msg)
             if r.phase == "done":
                 raise FeedbackError(
                     f"review {r.review_id} is over (its report is out); start the next episode to review again"
@@ -242,12 +241,17 @@ class ReviewLoop:
             self._submit(lambda: self._take(r, msg, record))
             return TAKEN[decision].format(plan=msg["plan_id"])
 
-    def _stop_teaching(self, r: Review, msg: dict) -> str:
-        """End the online imitation under way at once (called with the lock held): the round
-        waiting for labels ends without them, no new round starts, and the agent re-plans with
-        what it learnt so far."""
+    def _stop(self, r: Review, msg: dict) -> str:
+        """End the long job under way (called with the lock held). Teaching: the round waiting for
+        labels ends without them, no new round starts, and the agent re-plans with what it learnt
+        so far. Execution: the agent makes no further move in the real game and reports."""
+        if r.phase == "executing":
+            self.ledger.record(r.review_id, "feedback", msg)
+            r.answered.add((msg["plan_id"], "stop"))
+            r.stop_execution.set()
+            return STOP_EXECUTION_TAKEN
         if not r.teaching:
-            raise FeedbackError("there is no teaching under way to stop")
+            raise FeedbackError("there is nothing under way to stop (no teaching, no execution)")
         self.ledger.record(r.review_id, "feedback", msg)
         r.answered.add((msg["plan_id"], "stop"))
         r.stop_teaching.set()
@@ -309,7 +313,7 @@ class ReviewLoop:
             return
         self.pending_state = None
         review_id = s["episode_id"]
-        seed = int(s.get("seed", review_id.rsplit(":", 1)[-1]))
+        seed = int(s.get("seed", Episode.parse(review_id).seed))
         game = game_of(review_id)
         agent = self.agents.get(game)
         if agent is None:
@@ -540,6 +544,10 @@ class ReviewLoop:
             ex.observations.append(state["observation"])
         state = None
         while len(ex.actions) < cfg.max_steps:
+            if r.stop_execution.is_set():
+                ex.outcome = "stopped"
+                self.ports.log(f"review {r.review_id}: the reviewer stopped the execution at step {len(ex.actions)}")
+                break
             action = r.agent.act(ex.observations)
             try:
                 state = self._env(self.ports.env_step, {"action": action})
@@ -657,7 +665,11 @@ class ReviewLoop:
             elif kind == "feedback":
                 r.answered.add((p["plan_id"], p["decision"]))
                 if p["decision"] == "stop":
-                    continue  # it ended a teaching; the teaching's own feedback is what to redo
+                    # It ended a teaching (whose own feedback is what to redo) or an execution,
+                    # which, redone, stops before its first move.
+                    if pending is not None and pending[1]["decision"] == "approve":
+                        r.stop_execution.set()
+                    continue
                 pending = (rec["id"], p)
                 if p["decision"] not in ("approve", "abort"):
                     r.revisions += 1

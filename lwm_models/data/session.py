@@ -8,6 +8,7 @@ from ..messenger.constants import NUM_ACTIONS
 from ..messenger.engine import grid_to_compact
 from ..messenger.env import MessengerEnv
 from ..text import DescriptionPools
+from .episode import Episode
 from .splits import load_split
 
 
@@ -31,12 +32,22 @@ class GameSession:
         self.env = MessengerEnv(games[index], pools=self.pools, split=split, max_steps=self.max_steps)
         self.obs = None
 
-    def reset(self, seed: int = 0, split: str | None = None, index: int | None = None) -> dict:
-        if split is not None or index is not None:
-            self.select(split or self.split, self.index if index is None else index)
-        self.seed = seed
-        self.episode_id = f"{self.split}:{self.index}:{seed}"
-        self.obs, self.info = self.env.reset(seed=seed)
+    def reset(
+        self, seed: int = 0, split: str | None = None, index: int | None = None, restart: bool = False
+    ) -> dict:
+        """A new episode; `restart`: the current one again (same seed and board) as its next attempt,
+        which the planner reviews afresh."""
+        if restart:
+            if self.obs is None:
+                raise LwmError("no episode to restart yet: reset first")
+            episode = self.episode.restarted()
+        else:
+            if split is not None or index is not None:
+                self.select(split or self.split, self.index if index is None else index)
+            episode = Episode(self.split, self.index, seed)
+        self.episode, self.seed = episode, episode.seed
+        self.episode_id = episode.id
+        self.obs, self.info = self.env.reset(seed=episode.seed)
         self.reward, self.total, self.outcome = 0.0, 0.0, "running"
         return self.state()
 
@@ -60,6 +71,7 @@ class GameSession:
         return {
             "episode_id": self.episode_id,
             "seed": self.seed,
+            "attempt": self.episode.attempt,
             "game": {"split": self.split, "index": self.index},
             "t": self.env.t,
             "observation": grid_to_compact(self.obs).tolist(),

@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import messages
+from ..data.episode import game_of
 from ..errors import LwmError
 from .base import Conditioning
 from .checkpoint import load_checkpoint
@@ -115,7 +116,7 @@ class Simulator:
     def take_env_manual(self, descriptions: list[str], episode_id: str = "") -> tuple[int, bool]:
         """The environment's manual is the default: it replaces the manual when no person has
         given one, or when the game changed (a person's manual was about the previous game)."""
-        game = episode_id.rsplit(":", 1)[0] if episode_id else ""
+        game = game_of(episode_id) if episode_id else ""
         with self.lock:
             if self.manual_source not in ("", "env") and (not game or game == self.game):
                 return self.manual_version, False

@@ -11,6 +11,7 @@ from lwm_interfaces.srv import Json
 
 from lwm_models import messages
 from lwm_models.data.session import GameSession
+from lwm_models.errors import LwmError
 from lwm_nodes.common import LATCHED, JsonNode, run
 
 
@@ -54,7 +55,9 @@ class EnvNode(JsonNode):
 
     def on_reset(self, req, res):
         def act(p):
-            state = self.session.reset(int(p.get("seed", 0)), p.get("split"), p.get("index"))
+            if p.get("restart") and any(k in p for k in ("seed", "split", "index")):
+                raise LwmError("a restart plays the current episode again: give no seed, split or index with it")
+            state = self.session.reset(int(p.get("seed", 0)), p.get("split"), p.get("index"), bool(p.get("restart")))
             self._announce(state)
             return state
 

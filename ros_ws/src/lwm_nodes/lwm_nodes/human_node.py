@@ -6,12 +6,14 @@ futures, then
     r                 reject (the planner imagines again)
     c STEP:ACTION ... corrections, e.g. "c 1:3 2:3" (actions 0 up, 1 down, 2 left, 3 right, 4 stay)
     i [ROUNDS]        online imitation: the planner imagines rounds of episodes and asks for labels
-    stop              end the online imitation under way (the agent keeps what it learnt, re-plans)
+    stop              end the online imitation under way (the agent keeps what it learnt, re-plans),
+                      or the execution of an approved plan (no further move; a report follows)
     l STATE:ACTION ...  label states of the current label request ("l -" sends none); one answer
                       per request, before the planner stops waiting (the request's timeout)
     x                 abort: execute nothing
     m                 a new manual, three descriptions, one per line (published on /feedback/manual)
     n [SEED]          the next episode of this game (the next seed, or SEED): a fresh review
+    restart           this episode again from its start (same board and seed), as a fresh review
     f                 every frame of the plan (a plan shows its start and last board, a line per step)
     s N               state N of the label request, beside the state a step before it
 Every answer, label batch and manual gets the receiving node's answer on /lwm/acks (printed here,
@@ -28,8 +30,9 @@ plan and its futures drawn, the manual's legend, the answers, the label requests
 the execution report, and the review history read (read-only) from the planner's ledger at
 `ledger` (default logs/ledger.sqlite; the launcher passes its --ledger). Page answers take the
 terminal's code paths: the same checks, signature and schema.
-Everything it publishes is signed as reviewer `reviewer` (default: scripted or terminal) with that
-reviewer's key from `keys_file` (lwm_nodes.trust); the planner and the simulator take nothing else.
+Everything it publishes is signed as reviewer `reviewer` (default: scripted or terminal; on the page,
+nobody until the person says who they are) with that reviewer's key from `keys_file`
+(lwm_nodes.trust); the planner and the simulator take nothing else.
 """
 
 from __future__ import annotations
@@ -52,6 +55,7 @@ from lwm_models.agent.review import check_labels
 from lwm_models.agent.review_text import plan_text, state_text
 from lwm_models.agent.review_view import history_view, label_request_view, plan_view, report_view
 from lwm_models.agent.reviewer import ScriptedReviewer
+from lwm_models.data.episode import Episode
 from lwm_models.data.splits import load_split
 from lwm_models.ledger import Ledger
 from lwm_models.run_dirs import DEFAULT_LEDGER
@@ -96,7 +100,12 @@ class HumanNode(JsonNode):
         self.answered: set[tuple[str, int]] = set()  # (review_id, request_id): the planner takes one answer
         self.labels_lock = threading.Lock()  # the page answers from its own threads (a double click, too)
         self.ledger_path = Path(p("ledger", str(DEFAULT_LEDGER)).value)
-        signer = Signer(self, "scripted" if self.scripted else "terminal")
+        port = int(p("page_port", 0).value)
+        # At the page nobody answers until the person says who they are (unless the launcher said).
+        signer = Signer(self, "scripted" if self.scripted else "" if port else "terminal")
+        self.signer = signer
+        self.executing: str | None = None  # the review whose approved plan the agent plays now
+        self.reported: set[str] = set()  # reviews whose report came (an ack may come after it)
         # What this node sent, by msg_id, until the receiving node answers on /lwm/acks.
         self.sent: dict[str, dict] = {}
         self.sent_lock = threading.Lock()
@@ -119,7 +128,6 @@ class HumanNode(JsonNode):
         self.json_subscription("/planner/label_request", "label_request", self.on_label_request, LATCHED)
         self.json_subscription("/planner/report", "execution_report", self.on_report, LATCHED)
         self.page = None
-        port = int(p("page_port", 0).value)
         if port and not self.scripted:
             self.page = ReviewPage(
                 p("page_host", "127.0.0.1").value,
@@ -128,7 +136,8 @@ class HumanNode(JsonNode):
                 on_manual=self.on_page_manual,
                 on_labels=self.on_page_labels,
                 history=self.page_history,
-                on_episode=lambda body: self.next_episode(body.get("seed")),
+                on_episode=self.on_page_episode,
+                on_reviewer=self.on_page_reviewer,
                 reviewer=signer.reviewer,
             )
             self.json_subscription("/lwm/status", "status", lambda s: self.page.push("status", s), LATCHED)
@@ -147,7 +156,7 @@ class HumanNode(JsonNode):
         def send(payload: dict) -> str:
             msg_id = f"{self.get_name()}-{uuid.uuid4().hex[:12]}"
             with self.sent_lock:
-                self.sent[msg_id] = {"event": threading.Event(), "ack": None}
+                self.sent[msg_id] = {"event": threading.Event(), "ack": None, "payload": payload}
             publish({**payload, "msg_id": msg_id})
             return msg_id
 
@@ -166,6 +175,9 @@ class HumanNode(JsonNode):
             if entry is None or entry["ack"] is not None:
                 return
             entry["ack"] = ack
+        sent = entry["payload"]
+        if ack["ok"] and sent.get("decision") == "approve" and sent["review_id"] not in self.reported:
+            self.executing = sent["review_id"]  # the planner plays it now: no reset under its feet
         entry["event"].set()
         if self.page is None:
             who = ack["node"].replace("lwm_", "")
@@ -179,20 +191,44 @@ class HumanNode(JsonNode):
             return None
         return entry["ack"]
 
-    def next_episode(self, seed: int | None = None) -> str:
-        """Start the next episode of this game (the next seed, or `seed`): the environment resets
-        and the planner opens a fresh review of it."""
-        if seed is None:
-            if self.episode is None:
-                raise ValueError("no episode yet: the environment has not said which game it plays")
-            seed = int(self.episode.rsplit(":", 1)[-1]) + 1
-        if not isinstance(seed, int) or seed < 0:
-            raise ValueError(f"a seed is a whole number >= 0, not {seed!r}")
-        answer = self.env_reset({"seed": seed})
+    def next_episode(self, seed: int | None = None, restart: bool = False) -> str:
+        """Start the next episode of this game (the next seed, or `seed`), or with `restart` this
+        episode again from its start: the environment resets and the planner opens a fresh review."""
+        if self.episode is None:
+            raise ValueError("no episode yet: the environment has not said which game it plays")
+        if self.executing is not None:
+            raise ValueError(
+                f"the agent is playing the approved plan of review {self.executing} in the game: "
+                "wait for its report, or stop it first"
+            )
+        if restart:
+            if seed is not None:
+                raise ValueError("a restart plays this episode again: it takes no seed")
+            request = {"restart": True}
+        else:
+            seed = Episode.parse(self.episode).seed + 1 if seed is None else seed
+            if not isinstance(seed, int) or isinstance(seed, bool) or seed < 0:
+                raise ValueError(f"a seed is a whole number >= 0, not {seed!r}")
+            request = {"seed": seed}
+        answer = self.env_reset(request)
         if not answer.get("ok"):
             raise ValueError(f"the environment refused: {answer.get('error', 'no reason given')}")
         episode = answer["state"]["episode_id"]
-        return f"episode {episode} started; its plan follows"
+        again = " again (a new review of the same board)" if restart else ""
+        return f"episode {episode} started{again}; its plan follows"
+
+    def on_page_episode(self, body: dict) -> str:
+        return self.next_episode(body.get("seed"), bool(body.get("restart", False)))
+
+    def on_page_reviewer(self, body: dict) -> str:
+        """The person at the page says who they are: their answers are signed with their own key."""
+        name = body.get("reviewer")
+        if not isinstance(name, str) or not name.strip():
+            raise ValueError("type your name: 1-64 letters, digits, '_', '.' or '-'")
+        who = self.signer.become(name.strip())
+        self.get_logger().info(f"page: the reviewer is now {who!r}")
+        self.page.set_reviewer(who)
+        return f"you answer as {who}: your answers are signed with your own key"
 
     def on_state(self, payload: dict) -> None:
         self.episode = payload["episode_id"]
@@ -212,6 +248,8 @@ class HumanNode(JsonNode):
         ):
             return  # a latched repeat
         self.plan = plan
+        if plan["reason"] == "divergence" and self.executing == plan["review_id"]:
+            self.executing = None  # the execution waits for this plan's review
         if self.page is not None:
             self.page.push("plan", plan_view(plan))
             show(plan, quiet=True)
@@ -222,7 +260,7 @@ class HumanNode(JsonNode):
         else:
             print(
                 "answer: a approve | r reject | c STEP:ACTION ... correct | i [ROUNDS] teach | x abort | m manual | "
-                "n next episode | f every frame",
+                "n next episode | restart this episode | f every frame | stop (teaching or the agent's play)",
                 flush=True,
             )
 
@@ -251,7 +289,7 @@ class HumanNode(JsonNode):
             self.pools = (
                 DescriptionPools.from_files(self.texts.split(",")) if self.texts else DescriptionPools.generated()
             )
-        seed = int(plan["review_id"].rsplit(":", 1)[-1])
+        seed = Episode.parse(plan["review_id"]).seed
         manual = self.reviewer.reworded_manual(self.pools, self.split, plan["manual"], seed)
         self.publish_manual({"descriptions": manual, "source": "human"})
         # The wall time lets benchmarks/review_loop.py time feedback -> revised plan.
@@ -420,6 +458,9 @@ class HumanNode(JsonNode):
             self.page.close()
 
     def on_report(self, report: dict) -> None:
+        self.reported.add(report["review_id"])
+        if self.executing == report["review_id"]:
+            self.executing = None
         if self.page is not None:
             self.page.push("report", report_view(report))
         print(
@@ -435,7 +476,7 @@ class HumanNode(JsonNode):
             self.stop.set()
             return
         # The operator's part: start the next episode (the next seed) of the same game.
-        seed = int(report["review_id"].rsplit(":", 1)[-1]) + 1
+        seed = Episode.parse(report["review_id"]).seed + 1
         self.work.put(lambda: self.env_reset({"seed": seed}))
 
     def _work(self) -> None:
@@ -470,6 +511,9 @@ class HumanNode(JsonNode):
             seed = line.split()[1:]
             print(self.next_episode(int(seed[0]) if seed else None), flush=True)
             return
+        if line == "restart":
+            print(self.next_episode(restart=True), flush=True)
+            return
         if line.startswith("l "):
             pairs = [] if line[2:].strip() == "-" else [p.split(":") for p in line[2:].split()]
             self.send_labels([int(s) for s, _ in pairs], [int(a) for _, a in pairs])
@@ -493,7 +537,8 @@ class HumanNode(JsonNode):
             self.publish_feedback({**base, "decision": "corrections", "corrections": fixes})
         else:
             print(
-                "unknown command; a | r | c STEP:ACTION ... | i [ROUNDS] | l STATE:ACTION ... | x | m | n [SEED]",
+                "unknown command; a | r | c STEP:ACTION ... | i [ROUNDS] | l STATE:ACTION ... | x | stop | m | "
+                "n [SEED] | restart",
                 flush=True,
             )
 

@@ -132,7 +132,7 @@ def default_nodes(
         params = {"scripted": "true", **signs, **(reviewer or {})}
         nodes.append(NodeSpec("human", "lwm_nodes.human_node", params, final=True))
     elif human == "page":
-        page = {"page_port": str(page_port), "ledger": ledger, "reviewer": person}
+        page = {"page_port": str(page_port), "ledger": ledger, **({"reviewer": person} if person else {})}
         nodes.append(NodeSpec("human", "lwm_nodes.human_node", {**signs, **page}))
     elif human == "interactive":
         params = {**signs, "reviewer": person}
@@ -371,9 +371,10 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument(
         "--reviewer",
-        default="terminal",
+        default=None,
         help="who reviews at the terminal or the page: their answers are signed with their own key (made in the "
-        "key file if missing) and the ledger records them by this name",
+        "key file if missing) and the ledger records them by this name (default: 'terminal' at the terminal; "
+        "the page asks)",
     )
     human = parser.add_mutually_exclusive_group()
     human.add_argument("--scripted", action="store_true", help="the simulated human reviews; exits with a summary")
@@ -419,11 +420,13 @@ def main(argv: list[str] | None = None) -> int:
     keys_file = args.keys_file if args.keys_file is not None else keys_default
     # A new file gets both reviewers; an existing one (perhaps shared across hosts) only gains the
     # one this launch's human node signs as.
+    person = args.reviewer or ("terminal" if human == "interactive" else "")
     try:
-        signing.check_reviewer_id(args.reviewer)
+        if person:
+            signing.check_reviewer_id(person)
     except signing.SigningError as exc:
         parser.error(f"--reviewer: {exc}")
-    needed = {"scripted": ["scripted"], "interactive": [args.reviewer], "page": [args.reviewer]}.get(human, [])
+    needed = {"scripted": ["scripted"], "interactive": [person], "page": [person] if person else []}.get(human, [])
     try:
         keys = signing.ensure_key_file(
             keys_file, needed if keys_file.exists() else sorted({*signing.DEFAULT_REVIEWERS, *needed})
@@ -446,7 +449,7 @@ def main(argv: list[str] | None = None) -> int:
         str(keys_file),
         args.trusted,
         args.page or 0,
-        args.reviewer,
+        person,
     )
     if args.only:
         wanted = {name.strip() for name in args.only.split(",") if name.strip()}

@@ -5,8 +5,9 @@ a snapshot of what is under review (GET /api/state), live updates as server-sent
 /api/events: plan, label_request, report, status; a page that connects, or reconnects after a
 node restart, gets what is shown now first, "no label request" included), the review history from the ledger (GET
 /api/history, /api/history?review=ID; the node reads the ledger read-only), and the person's
-answers (POST /api/feedback, /api/labels, /api/manual), which the node signs and publishes, and
-the next episode (POST /api/episode). It
+answers (POST /api/feedback, /api/labels, /api/manual), which the node signs and publishes, the
+next episode or this one again (POST /api/episode), and who is reviewing (GET and POST
+/api/reviewer: the node signs as that person from then on; every open page hears it). It
 binds to localhost unless told otherwise. A POST must be JSON and, when the browser names an
 origin, come from this page: a web page on another origin cannot answer a plan through the
 reviewer's browser.
@@ -36,7 +37,7 @@ class ReviewPage:
     body of a POST and return the receiving node's words (shown beside the control), or raise to
     refuse it (the page shows the reason); history(review_id or None) answers GET /api/history."""
 
-    KINDS = ("plan", "label_request", "report", "status")
+    KINDS = ("plan", "label_request", "report", "status", "reviewer")
     # Sent to a (re)connecting page even when there is none: the page may still show a request that
     # ended while it was away (the node restarted, the planner moved on), and would keep asking the
     # person for labels nobody takes. A plan or report the node has not (yet) had is left as shown.
@@ -51,6 +52,7 @@ class ReviewPage:
         on_labels: Callable[[dict], str],
         history: Callable[[str | None], dict],
         on_episode: Callable[[dict], str] | None = None,
+        on_reviewer: Callable[[dict], str] | None = None,
         reviewer: str = "",
     ) -> None:
         self._state: dict[str, dict | None] = dict.fromkeys(self.KINDS)
@@ -59,7 +61,9 @@ class ReviewPage:
         self._closed = threading.Event()
         self.on_feedback, self.on_manual, self.on_labels, self.history = on_feedback, on_manual, on_labels, history
         self.on_episode = on_episode or _no_episodes
-        self.reviewer = reviewer  # whose key signs the answers (shown on the page)
+        self.on_reviewer = on_reviewer or _fixed_reviewer
+        self.reviewer = reviewer  # whose key signs the answers (shown on the page); "": nobody yet
+        self._state["reviewer"] = {"reviewer": reviewer}
         self.server = ThreadingHTTPServer((host, port), _handler(self))
         self.server.daemon_threads = True
         threading.Thread(target=self.server.serve_forever, name="review-page", daemon=True).start()
@@ -80,6 +84,10 @@ class ReviewPage:
             self._state[kind] = payload
             for stream in self._streams:
                 stream.put((kind, payload))
+
+    def set_reviewer(self, reviewer: str) -> None:
+        self.reviewer = reviewer
+        self.push("reviewer", {"reviewer": reviewer})
 
     def snapshot(self) -> dict[str, dict | None]:
         with self._lock:
@@ -111,6 +119,10 @@ class ReviewPage:
 
 def _no_episodes(body: dict) -> str:
     raise ValueError("this page cannot start episodes")
+
+
+def _fixed_reviewer(body: dict) -> str:
+    raise ValueError("this page's reviewer is fixed")
 
 
 def _handler(page: ReviewPage) -> type[BaseHTTPRequestHandler]:
@@ -146,6 +158,7 @@ def _handler(page: ReviewPage) -> type[BaseHTTPRequestHandler]:
                 "/api/labels": page.on_labels,
                 "/api/manual": lambda b: page.on_manual(b["descriptions"]),
                 "/api/episode": page.on_episode,
+                "/api/reviewer": page.on_reviewer,
             }
             handle = routes.get(self.path)
             origin = self.headers.get("Origin")

@@ -8,6 +8,7 @@ publishes.
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Callable
 from pathlib import Path
 
@@ -29,12 +30,13 @@ def declare_keyring(node: Node) -> signing.Keyring:
     path = _keys_file(node)
     trusted = [r.strip() for r in node.declare_parameter("trusted", "").value.split(",") if r.strip()]
     if path.exists() or trusted:
-        keyring = signing.Keyring(signing.load_keys(path), str(path))
+        keyring = signing.Keyring(signing.load_keys(path), str(path), path)
         keyring = keyring.only(trusted) if trusted else keyring
-        node.get_logger().info(f"trusted reviewers: {', '.join(sorted(keyring.keys)) or 'none'} (keys in {path})")
+        also = "" if trusted else "; reviewers added to the file later are trusted as they come"
+        node.get_logger().info(f"trusted reviewers: {', '.join(sorted(keyring.keys)) or 'none'} (keys in {path}{also})")
         return keyring
-    node.get_logger().warning(f"no key file at {path}: this node trusts no reviewer and refuses all feedback")
-    return signing.Keyring({}, f"{path} (missing)")
+    node.get_logger().warning(f"no key file at {path}: this node refuses all feedback until the file is made")
+    return signing.Keyring({}, f"{path} (missing)", path)
 
 
 def verified(
@@ -53,29 +55,43 @@ def verified(
 
 class Signer:
     """Signs payloads as one reviewer. A node without its key still starts (it may only display);
-    publishing then fails with the reason."""
+    publishing then fails with the reason. An empty `reviewer` parameter means nobody yet: the
+    page asks who is reviewing (`become`)."""
 
     def __init__(self, node: Node, default_reviewer: str) -> None:
-        path = _keys_file(node)
-        self.reviewer = signing.check_reviewer_id(node.declare_parameter("reviewer", default_reviewer).value)
+        self.path = _keys_file(node)
+        self.reviewer = node.declare_parameter("reviewer", default_reviewer).value
         self.key: bytes | None = None
-        self.problem = ""
-        try:
-            self.key = signing.load_keys(path).get(self.reviewer)
-            if self.key is None:
-                self.problem = f"reviewer {self.reviewer!r} has no key in {path}"
-        except signing.KeyFileError as exc:
-            self.problem = str(exc)
+        self.problem = "nobody has said who is reviewing"
+        self.lock = threading.Lock()
+        if self.reviewer:
+            signing.check_reviewer_id(self.reviewer)
+            try:
+                self.key = signing.load_keys(self.path).get(self.reviewer)
+                self.problem = "" if self.key is not None else f"reviewer {self.reviewer!r} has no key in {self.path}"
+            except signing.KeyFileError as exc:
+                self.problem = str(exc)
         if self.key is None:
             node.get_logger().warning(f"cannot sign: {self.problem}; the planner will refuse this node's feedback")
         else:
-            node.get_logger().info(f"signing as reviewer {self.reviewer!r} (key in {path})")
+            node.get_logger().info(f"signing as reviewer {self.reviewer!r} (key in {self.path})")
+
+    def become(self, reviewer: str) -> str:
+        """Sign as `reviewer` from now on, with their own key (added to the key file if they have
+        none: the planner and simulator read the file again when they first see the name)."""
+        reviewer = signing.check_reviewer_id(reviewer)
+        key = signing.ensure_key_file(self.path, [reviewer])[reviewer]
+        with self.lock:
+            self.reviewer, self.key, self.problem = reviewer, key, ""
+        return reviewer
 
     def sign(self, kind: str, payload: dict) -> dict:
-        if self.key is None:
-            raise signing.SigningError(f"not signed: {self.problem}")
+        with self.lock:
+            reviewer, key, problem = self.reviewer, self.key, self.problem
+        if key is None:
+            raise signing.SigningError(f"not signed: {problem}")
         # The version is part of what is signed, so it is set before signing.
-        return signing.sign(kind, {"version": messages.version(kind), **payload}, self.reviewer, self.key)
+        return signing.sign(kind, {"version": messages.version(kind), **payload}, reviewer, key)
 
     def publisher(self, publish: Callable[[dict], None], kind: str) -> Callable[[dict], None]:
         return lambda payload: publish(self.sign(kind, payload))
