@@ -46,8 +46,7 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-@pytest.fixture()
-def page_system(tmp_path):
+def start_page_system(tmp_path: Path, *extra: str):
     port = free_port()
     env = {
         **os.environ,
@@ -55,8 +54,7 @@ def page_system(tmp_path):
         "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST",
         "ROS_LOG_DIR": str(tmp_path / "roslog"),
     }
-    cmd = [sys.executable, "-m", "lwm_nodes.launcher", "--page", str(port), "--quiet", "--iterations", "2"]
-    cmd += ["--reviewer", "alice"]  # a person of their own, with their own key
+    cmd = [sys.executable, "-m", "lwm_nodes.launcher", "--page", str(port), "--quiet", "--iterations", "2", *extra]
     cmd += ["--log-dir", str(tmp_path / "logs"), "--ledger", str(tmp_path / "ledger.sqlite")]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
     url = None
@@ -70,6 +68,18 @@ def page_system(tmp_path):
     proc.send_signal(signal.SIGINT)
     out, _ = proc.communicate(timeout=30)
     assert proc.returncode == 0, out
+
+
+@pytest.fixture()
+def page_system(tmp_path):
+    """The launcher names the reviewer (a restarted node signs as alice again by itself)."""
+    yield from start_page_system(tmp_path, "--reviewer", "alice")
+
+
+@pytest.fixture()
+def unnamed_page_system(tmp_path):
+    """Nobody named: the page asks who is reviewing."""
+    yield from start_page_system(tmp_path)
 
 
 @pytest.fixture()
@@ -142,12 +152,25 @@ def shoot(driver, tmp_path: Path, name: str, panel: str | None = None) -> None:
         shutil.copy(tmp_path / name, Path(os.environ["LWM_SCREENSHOTS"]) / name)
 
 
-def test_review_in_the_browser(page_system, browser):
-    url, tmp_path, _ = page_system
+def test_review_in_the_browser(unnamed_page_system, browser):
+    url, tmp_path, _ = unnamed_page_system
     browser.get(url)
     wait = WebDriverWait(browser, 120, poll_frequency=0.3)
     title = lambda: browser.find_element("id", "plan-title").text  # noqa: E731
     wait.until(lambda _: title().startswith("plan 1 "))
+    # Nobody has said who reviews: the page asks, and answers wait until they do.
+    assert "Who is reviewing?" in browser.find_element("id", "reviewer").text
+    answers = ("approve", "reject", "send-manual", "next-episode")
+    why = {b: browser.find_element("id", b).get_attribute("title") for b in answers}
+    assert why == dict.fromkeys(answers, "say who is reviewing first"), why
+    assert all(browser.find_element("id", b).get_attribute("disabled") for b in answers)
+    shoot(browser, tmp_path, "review_page_who.png")
+    keys_file = tmp_path / "logs" / "reviewer_keys.json"
+    assert "alice" not in json.loads(keys_file.read_text())["keys"]  # she joins the running system
+    browser.find_element("id", "reviewer-name").send_keys("alice", Keys.ENTER)
+    wait.until(lambda _: 'you answer as reviewer "alice"' in browser.find_element("id", "reviewer").text)
+    assert "you answer as alice" in browser.find_element("id", "who-message").text
+    assert not browser.find_element("id", "approve").get_attribute("disabled")
     assert "manual v1" in title() and painted_cells(browser, "board") >= 3  # avatar and entities
     assert title().endswith("imagined with only moves the game allows")  # the default: constrained plans
     assert " the plan " in title() and ("dies at step" in title() or "wins at step" in title() or "runs" in title())
@@ -155,7 +178,6 @@ def test_review_in_the_browser(page_system, browser):
     # Beside what the text says, what the world model imagined of each entity on the board.
     imagined = [e.text for e in browser.find_elements("css selector", "#imagined div")]
     assert len(imagined) == 3 and all(": " in line and "; " in line for line in imagined), imagined
-    assert 'you answer as reviewer "alice"' in browser.find_element("id", "reviewer").text
     shoot(browser, tmp_path, "review_page_plan.png")
 
     # Language feedback from the page: the enemy's description reworded.
@@ -206,6 +228,8 @@ def test_review_in_the_browser(page_system, browser):
     browser.find_element("id", "send-labels").click()
     wait.until(lambda _: "(imitation)" in title())
     assert not browser.find_element("id", "labels").is_displayed()
+    # Labels are sent only while a request waits for them.
+    assert browser.find_element("id", "send-labels").get_attribute("title") == "no label request waits for labels"
     ledger = Ledger(tmp_path / "ledger.sqlite", read_only=True)
     taken = [r["payload"] for r in ledger.history() if r["kind"] == "labels"]
     ledger.close()
@@ -237,6 +261,7 @@ def test_review_in_the_browser(page_system, browser):
     shoot(browser, tmp_path, "review_page_report.png")
     # The review is over: its answers are off, and the page says why; the planner refuses one anyway.
     assert all(browser.find_element("id", b).get_attribute("disabled") for b in ("approve", "reject", "abort"))
+    assert browser.find_element("id", "stop-execution").get_attribute("title") == "the agent is not playing"
     assert browser.find_element("id", "over").is_displayed()
     late = urllib.request.Request(
         url + "api/feedback",
@@ -286,6 +311,15 @@ def test_review_in_the_browser(page_system, browser):
     # The last review's report and the answer about it are gone: they were not about this plan.
     assert not browser.find_element("id", "report").is_displayed() and text("message") == ""
     shoot(browser, tmp_path, "review_page_next_episode.png")
+    first = json.load(urllib.request.urlopen(url + "api/state", timeout=10))["plan"]
+
+    # This episode again, from its first board, as a fresh review (attempt 2).
+    browser.find_element("id", "restart-episode").click()
+    wait.until(lambda _: f"episode {following}#2 started again" in text("episode-message"))
+    wait.until(lambda _: f" of review {following}#2 " in title() and title().startswith("plan 1 "))
+    again = json.load(urllib.request.urlopen(url + "api/state", timeout=10))["plan"]
+    assert again["observations"][0] == first["observations"][0] and again["review_id"] == f"{following}#2"
+    shoot(browser, tmp_path, "review_page_restarted.png")
 
     # Another origin cannot answer through the reviewer's browser.
     request = urllib.request.Request(
@@ -399,7 +433,9 @@ def test_the_page_survives_node_restarts(page_system, browser):
         away = [v for v in views if v["status"] == "reconnecting…"]
         panel = 2 if away[0]["labels"] else 1  # the labelling panel's reason too, when it is up
         assert all(v["disabled"] == ANSWERS and v["reasons"] == panel for v in away), away
-        assert not any(browser.find_element("id", a).get_attribute("disabled") for a in ANSWERS)
+        # Back: every answer applies again, but sending labels while no request waits for them.
+        idle = [] if browser.find_element("id", "labels").is_displayed() else ["send-labels"]
+        assert [a for a in ANSWERS if browser.find_element("id", a).get_attribute("disabled")] == idle
         return views
 
     def labels_taken() -> list[dict]:

@@ -458,12 +458,15 @@ def test_only_a_trusted_reviewer_can_approve(system, tmp_path):
         assert taken() == [], "a refused approval reached the review"
         assert latched(system, "/planner/plan")["plan_id"] == plan["plan_id"]  # still under review
 
+        # A person who joins the running system gets a key in the launcher's file: the planner,
+        # which read the file at its start, reads it again when it first sees them.
+        signing.ensure_key_file(system["tmp"] / "logs" / "reviewer_keys.json", ["dave"])
         sent = lwm_ros(
-            system, "pub", "/review/feedback", json.dumps(approve), "--kind", "review_feedback", *signed(system)
+            system, "pub", "/review/feedback", json.dumps(approve), "--kind", "review_feedback", *signed(system, "dave")
         )
         assert sent.returncode == 0 and "approved: the agent now acts" in sent.stdout, sent.stderr
         feedback = wait_for(taken, timeout=30)
-        assert feedback and feedback[0]["decision"] == "approve" and feedback[0]["reviewer"] == "terminal"
+        assert feedback and feedback[0]["decision"] == "approve" and feedback[0]["reviewer"] == "dave"
         assert feedback[0]["plan_id"] == plan["plan_id"] and len(feedback[0]["signature"]) == 64
     finally:
         errors.terminate()
@@ -507,6 +510,12 @@ def test_the_terminal_review_shows_answers_refusals_and_takes_a_correction(syste
         assert said(f"planner: corrections of plan {plan['plan_id']} taken"), log_path.read_text()[-2000:]
         revised = wait_for(lambda: (p := latched(system, "/planner/plan"))["plan_id"] > plan["plan_id"] and p)
         assert revised and revised["actions"][0] == wanted
+        # This episode again, as a fresh review from the same first board.
+        type_line("restart")
+        assert said("episode newall-test:0:21#2 started again"), log_path.read_text()[-2000:]
+        again = wait_for(lambda: (p := latched(system, "/planner/plan"))["review_id"].endswith(":21#2") and p)
+        assert again and again["plan_id"] == 1 and again["observations"][0] == plan["observations"][0]
+        assert again["actions"][0] == wanted  # the correction holds in the same state
     finally:
         human.send_signal(signal.SIGINT)
         human.wait(timeout=30)
@@ -542,7 +551,7 @@ def test_a_stop_ends_the_teaching_within_2_s_and_the_ledger_stays_consistent(sys
     assert took < 2.0, f"the teaching ended {took:.2f} s after the stop"
     later = json.dumps({**base, "plan_id": revised["plan_id"], "decision": "stop"})  # nothing to stop now
     again = lwm_ros(system, "pub", "/review/feedback", later, "--kind", "review_feedback", *signed(system))
-    assert again.returncode == 1 and "no teaching under way" in again.stderr, again.stderr
+    assert again.returncode == 1 and "nothing under way to stop" in again.stderr, again.stderr
 
 
 def start_scripted(tmp_path: Path, *extra: str) -> tuple[subprocess.Popen, dict, Path]:
