@@ -6,9 +6,10 @@ Prints per game and overall: real return (mean, 95% interval over games), outcom
 approved plan's shown trajectory died, time from feedback to the revised plan per feedback kind
 (p50, max; language feedback: the reviewer's first answer is the true manual in other words),
 the /lwm/imagine calls and their overhead over the simulator's own time, and the
-comparison with Table 3's online-imitation records on the same games (results/table3_records.jsonl).
+comparison with Table 3's online-imitation records on the same games (results/table3/records-10-games-emma-lwm.jsonl,
+the shipped EMMA-LWM's).
 
-    .venv/bin/python benchmarks/review_loop.py [--games 10] [--texts FILE ...] [--out results/review_loop.jsonl]
+    .venv/bin/python benchmarks/review_loop.py [--games 10] [--texts FILE ...] [--out results/review-loop/NAME.jsonl]
 """
 
 from __future__ import annotations
@@ -124,7 +125,12 @@ def main() -> int:
     )
     default_texts = [str(TEXTS / "text_train.json"), str(TEXTS / "text_val.json")] if TEXTS.is_dir() else None
     p.add_argument("--texts", nargs="*", default=default_texts, help="description files of the game's manuals")
-    p.add_argument("--records", type=Path, default=ROOT / "results" / "table3_records.jsonl")
+    p.add_argument(
+        "--records",
+        type=Path,
+        default=ROOT / "results" / "table3" / "records-10-games-emma-lwm.jsonl",
+        help="Table 3 records of the same games to compare with (lwm agent table3 --records)",
+    )
     p.add_argument("--out", type=Path, default=None, help="JSONL of per-game results (appended)")
     p.add_argument("--logs", type=Path, default=None, help="keep each game's node logs and ledger here")
     p.add_argument(

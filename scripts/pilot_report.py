@@ -9,7 +9,7 @@ all its chunks (data loading excluded, evaluations included), as `--cpu-budget-m
 them; runs logged before CPU time was recorded fall back to wall-clock. CE "at T minutes" is that
 of the last dev evaluation that had begun by T.
 
-Usage: .venv/bin/python scripts/pilot_report.py [--runs runs] [--png results/pilot_dev_ce.png]
+Usage: .venv/bin/python scripts/pilot_report.py [--runs runs] [--png results/pilot/dev-ce.png]
        [--minutes 10 20 30 40] [--steps 250 500 750 1000 1250]
        [--pattern 'long-*'] [--extra NAME=METRICS.jsonl ...] [--title TEXT]
 """
@@ -102,7 +102,7 @@ def fmt(x: float | None, digits: int = 4) -> str:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs", default="runs", help="directory holding pilot-<variant>/")
-    ap.add_argument("--png", default="results/pilot_dev_ce.png", help="plot file ('' for none)")
+    ap.add_argument("--png", default="results/pilot/dev-ce.png", help="plot file ('' for none)")
     ap.add_argument("--minutes", type=float, nargs="+", default=[10, 20, 30, 40])
     ap.add_argument("--steps", type=int, nargs="+", default=[250, 500, 750, 1000, 1250])
     ap.add_argument("--pattern", default="pilot-*", help="run directories under --runs (the name follows the '-')")

@@ -1,0 +1,256 @@
+#!/usr/bin/env python
+"""Write the result tables of README.md and docs/*.md from the files in results/.
+
+A table lives in a Markdown file between `<!-- table:NAME -->` and `<!-- /table:NAME -->`; this
+script replaces what stands between the two markers with the table made from results/, so that
+no figure is copied by hand. `tests/test_results_tables.py` fails when a committed table differs
+from what the script makes.
+
+    .venv/bin/python scripts/results_tables.py           # rewrite every marked table
+    .venv/bin/python scripts/results_tables.py --check   # exit 1 naming the tables that are stale
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import re
+import sys
+from collections.abc import Callable
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+RESULTS = ROOT / "results"
+DOCS = ("README.md", "docs/*.md")
+SPLITS = ("newcombo-test", "newattr-test", "newall-test")
+
+# The paper's published figures (test splits NewCombo, NewAttr, NewAll), to compare with.
+PAPER_CE = {
+    "observational": (0.12, 0.18, 0.19),
+    "standard": (0.10, 0.15, 0.16),
+    "gpthard": (0.10, 0.15, 0.16),
+    "emma": (0.08, 0.10, 0.13),
+    "oracle": (0.08, 0.09, 0.12),
+}
+PAPER_IMAGINATION = {  # delta_dist, reward precision, termination precision
+    "observational": ((2.04, 2.91, 3.00), (0.39, 0.20, 0.15), (0.51, 0.33, 0.28)),
+    "emma": ((0.57, 1.14, 1.29), (0.88, 0.69, 0.70), (0.88, 0.75, 0.71)),
+    "oracle": ((0.49, 0.77, 0.92), (0.93, 0.81, 0.77), (0.89, 0.84, 0.79)),
+}
+# the shipped world models, in the paper's order: (kind, name, evaluation file)
+SHIPPED = (
+    ("observational", "Observational", "table1-2/observational.json"),
+    ("standard", "Standard", "table1-2/standard.json"),
+    ("gpthard", "GPTHard", "table1-2/gpthard.json"),
+    ("emma", "EMMA-LWM", "table1-2/emma-lwm.json"),
+    ("oracle", "OracleParse", "table1-2/oracle.json"),
+)
+TABLE3_MODELS = (("observational", "Observational"), ("emma", "EMMA-LWM"), ("oracle", "OracleParse"))
+TABLE3_SETTINGS = (("online_il", "Online IL"), ("filtered_bc", "Filtered BC"))
+SPLIT_HEAD = "| NewCombo | NewAttr | NewAll |"
+
+
+def _load(name: str) -> dict:
+    return json.loads((RESULTS / name).read_text())
+
+
+def _paper_table3() -> dict:
+    sys.path.insert(0, str(ROOT))
+    from lwm_models.cli.table3 import PAPER
+
+    return PAPER
+
+
+def _per_split(values, fmt: str, paper=None) -> str:
+    cells = []
+    for i, v in enumerate(values):
+        cell = format(v, fmt)
+        if paper is not None:
+            cell += f" [{paper[i]:.2f}]"
+        cells.append(cell)
+    return " / ".join(cells)
+
+
+def _link(name: str, base: str) -> str:
+    return f"[{Path(name).name}]({base}results/{name})"
+
+
+def _model_label(name: str, steps: int) -> str:
+    return f"{name} (step {steps:,})"
+
+
+# --------------------------------------------------------------------------- tables
+def table1(base: str) -> list[str]:
+    lines = ["| model | NewCombo | NewAttr | NewAll | file |", "|---|---|---|---|---|"]
+    for kind, name, path in SHIPPED:
+        d = _load(path)
+        ce = [d["results"][s]["cross_entropy"]["total"] for s in SPLITS]
+        cells = " | ".join(f"{v:.3f} [{p:.2f}]" for v, p in zip(ce, PAPER_CE[kind], strict=True))
+        lines.append(f"| {_model_label(name, d['steps'])} | {cells} | {_link(path, base)} |")
+    return lines
+
+
+def table2(base: str) -> list[str]:
+    lines = [
+        "| model | Delta_dist Combo / Attr / All | reward precision | termination precision |",
+        "|---|---|---|---|",
+    ]
+    for kind, name, path in SHIPPED:
+        d = _load(path)
+        im = [d["results"][s]["imagination"] for s in SPLITS]
+        paper = PAPER_IMAGINATION.get(kind, (None, None, None))
+        cells = [
+            _per_split([m["delta_dist"] for m in im], ".2f", paper[0]),
+            _per_split([m["reward_precision"] for m in im], ".2f", paper[1]),
+            _per_split([m["termination_precision"] for m in im], ".2f", paper[2]),
+        ]
+        lines.append(f"| {_model_label(name, d['steps'])} | " + " | ".join(cells) + " |")
+    return lines
+
+
+def rules(base: str) -> list[str]:
+    lines = [
+        "| model | sampling | reward precision | reward recall | termination precision | termination recall |",
+        "|---|---|---|---|---|---|",
+    ]
+    for _, name, path in SHIPPED:
+        d = _load(path)
+        for key, how in (("imagination", "raw"), ("imagination_constrained", "rules")):
+            im = [d["results"][s][key] for s in SPLITS]
+            cells = [
+                _per_split([m[k] for m in im], ".2f")
+                for k in ("reward_precision", "reward_recall", "termination_precision", "termination_recall")
+            ]
+            lines.append(f"| {_model_label(name, d['steps'])} | {how} | " + " | ".join(cells) + " |")
+    return lines
+
+
+def consistency(base: str) -> list[str]:
+    lines = [
+        "| model | reward with nothing in reach | identity changes | avatar jumps | vanishings "
+        "| rule breaks per step |",
+        "|---|---|---|---|---|---|",
+    ]
+    for _, name, path in SHIPPED:
+        d = _load(path)
+        im = [d["results"][s]["imagination"] for s in SPLITS]
+        cells = [_per_split([m["reward_without_reach"] for m in im], ".2f")]
+        for key in ("identity_change_rate", "avatar_jump_rate", "vanish_rate"):
+            cells.append(" / ".join(f"{100 * m[key]:.2f}%" for m in im))
+        cells.append(_per_split([m["rule_breaks_per_step"] for m in im], ".3f"))
+        lines.append(f"| {_model_label(name, d['steps'])} | " + " | ".join(cells) + " |")
+    return lines
+
+
+def _return(row: dict, paper: float | None) -> str:
+    low, high = row["ci95"]
+    text = f"{row['mean']:+.2f} ({low:+.2f}, {high:+.2f})"
+    return text if paper is None else f"{text} [{paper:.2f}]"
+
+
+def table3(base: str) -> list[str]:
+    rows, paper = _load("table3/summary-30-games.json")["rows"], _paper_table3()
+    lines = ["| setting | model " + SPLIT_HEAD, "|---|---|---|---|---|"]
+    for setting, label in TABLE3_SETTINGS:
+        for kind, name in TABLE3_MODELS:
+            row = rows[f"{setting}/{kind}"]
+            cells = [_return(row[s], paper[(setting, kind)][i]) for i, s in enumerate(SPLITS)]
+            lines.append(f"| {label} | {name} | " + " | ".join(cells) + " |")
+    return lines
+
+
+def summary(base: str) -> list[str]:
+    """One line per shipped model: test cross-entropy and Table 3's online imitation on NewAll."""
+    rows, paper3 = _load("table3/summary-30-games.json")["rows"], _paper_table3()
+    lines = [
+        "| model | test cross-entropy, NewCombo / NewAttr / NewAll [paper] "
+        "| real return after online imitation, NewAll, 30 games [paper] |",
+        "|---|---|---|",
+    ]
+    for kind, name, path in SHIPPED:
+        d = _load(path)
+        ce = [d["results"][s]["cross_entropy"]["total"] for s in SPLITS]
+        row = rows.get(f"online_il/{kind}")
+        ret = "not measured" if row is None else _return(row["newall-test"], paper3[("online_il", kind)][2])
+        lines.append(f"| {_model_label(name, d['steps'])} | {_per_split(ce, '.3f', PAPER_CE[kind])} | {ret} |")
+    return lines
+
+
+def review_loop(base: str) -> list[str]:
+    sys.path.insert(0, str(ROOT))
+    from lwm_models.stats import mean_interval
+
+    path = "review-loop/emma-lwm.jsonl"
+    games = [json.loads(line) for line in (RESULTS / path).read_text().splitlines() if line.strip()]
+    mean, low, high = mean_interval([g["real_return"] for g in games])
+    outcomes = [g["outcome"] for g in games]
+    counts = ", ".join(f"{outcomes.count(o)} {o}" for o in ("won", "died", "time_limit", "aborted") if o in outcomes)
+    died = sum(g["approved_plan_died"] for g in games)
+    return [
+        "| games (NewAll test) | real return, mean (95% t interval) | outcomes "
+        "| approved plans whose shown trajectory died | file |",
+        "|---|---|---|---|---|",
+        f"| {len(games)} | {mean:+.2f} ({low:+.2f}, {high:+.2f}) | {counts} | {died} | {_link(path, base)} |",
+    ]
+
+
+TABLES: dict[str, Callable[[str], list[str]]] = {
+    "summary": summary,
+    "table1": table1,
+    "table2": table2,
+    "rules": rules,
+    "consistency": consistency,
+    "table3": table3,
+    "review-loop": review_loop,
+}
+BLOCK = re.compile(r"(<!-- table:([\w-]+) -->\n)(.*?)(<!-- /table:\2 -->)", re.S)
+
+
+def render(text: str, base: str) -> str:
+    """`text` with every marked table made again from results/ (links relative to `base`)."""
+
+    def fill(match: re.Match) -> str:
+        name = match.group(2)
+        if name not in TABLES:
+            raise SystemExit(f"results_tables: unknown table {name!r} (known: {', '.join(TABLES)})")
+        return match.group(1) + "\n".join(TABLES[name](base)) + "\n" + match.group(4)
+
+    return BLOCK.sub(fill, text)
+
+
+def documents() -> list[Path]:
+    found: list[Path] = []
+    for pattern in DOCS:
+        found += sorted(ROOT.glob(pattern))
+    return found
+
+
+def base_of(path: Path) -> str:
+    """The relative path from `path`'s folder to the repository's root, for links."""
+    depth = len(path.relative_to(ROOT).parts) - 1
+    return "../" * depth
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--check", action="store_true", help="change nothing; exit 1 if a table is stale")
+    args = ap.parse_args(argv)
+    stale = []
+    for path in documents():
+        text = path.read_text()
+        made = render(text, base_of(path))
+        if made == text:
+            continue
+        stale.append(str(path.relative_to(ROOT)))
+        if not args.check:
+            path.write_text(made)
+    if args.check and stale:
+        print("results_tables: stale tables in " + ", ".join(stale) + " (run scripts/results_tables.py)")
+        return 1
+    if stale:
+        print("results_tables: rewrote " + ", ".join(stale))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
