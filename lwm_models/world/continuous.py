@@ -19,7 +19,8 @@ import numpy as np
 import torch
 
 from .base import Conditioning, WorldModel
-from .imagine import Imagination, Record, Rows
+from .decoding import make_rows
+from .imagine import Imagination, Record
 
 MAX_ROWS = 256  # trajectories running at once: bounds the memory and the time of one step
 FIRST_BLOCKS = 64  # start states whose first block a batch keeps (Rows._first_block): 16 KB each
@@ -60,8 +61,9 @@ class Track:
 class ContinuousBatch:
     """The running tracks and their rows: `admit` between steps, `step` returns the tracks that ended."""
 
-    def __init__(self, model: WorldModel, max_rows: int = MAX_ROWS) -> None:
-        self.rows = Rows(model, first_blocks=FIRST_BLOCKS)
+    def __init__(self, model: WorldModel, max_rows: int = MAX_ROWS, decoding: str | None = None) -> None:
+        """decoding: the path that decodes the rows (world/decoding.py; None: the default)."""
+        self.rows = make_rows(model, decoding, first_blocks=FIRST_BLOCKS)
         self.max_rows = max_rows
         self.tracks: list[Track] = []  # in row order: each track's rows are contiguous
         self.steps = 0  # steps taken, and trajectory-steps imagined: for status and benchmarks

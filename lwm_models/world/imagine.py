@@ -331,6 +331,7 @@ class Rollout:
         use_cache: bool = True,
         stop_on_done: bool = True,
         constrained: bool = False,
+        decoding: str | None = None,
     ) -> None:
         if max_steps < 1:
             raise ValueError(f"max_steps must be >= 1, got {max_steps}")
@@ -345,7 +346,9 @@ class Rollout:
         self.active = np.arange(n)
         self.t = 0
         seed = seed if seed is not None else int(torch.randint(2**31, ()).item())
-        self._rows = Rows(model, use_cache)
+        from .decoding import make_rows  # decoding's paths build on Rows, defined here
+
+        self._rows = make_rows(model, decoding, use_cache)
         cond = condition_rows(model.condition_on(manual), n)
         self._rows.admit(cond, first, max_steps, temperature, torch.Generator().manual_seed(seed), constrained)
 
@@ -392,6 +395,7 @@ def imagine(
     use_cache: bool = True,
     stop_on_done: bool = True,
     constrained: bool = False,
+    decoding: str | None = None,
 ) -> Imagination:
     """Imagine `n` trajectories.
 
@@ -402,6 +406,8 @@ def imagine(
     stop_on_done: False keeps imagining past a sampled done (benchmarks use it for full-length
         trajectories).
     constrained: sample under the game's rules (world/constraints.py), for plans shown to people.
+    decoding: "speculative", "flat" or "reference" (world/decoding.py); None: the default, the
+        fastest path that samples the reference path's tokens.
     """
     if (actions is None) == (policy is None):
         raise ValueError("give either an action sequence or a policy")
@@ -413,7 +419,9 @@ def imagine(
             raise ShapeError(f"actions must be [{n}, >= {max_steps}], got {actions.shape}")
         if ((actions < 0) | (actions >= NUM_ACTIONS)).any():
             raise ValueError(f"actions must be in 0..{NUM_ACTIONS - 1}")
-    rollout = Rollout(model, manual, first_obs, n, max_steps, temperature, seed, use_cache, stop_on_done, constrained)
+    rollout = Rollout(
+        model, manual, first_obs, n, max_steps, temperature, seed, use_cache, stop_on_done, constrained, decoding
+    )
     while not rollout.finished:
         active, t = rollout.active, rollout.t + 1
         if policy is not None:

@@ -1,0 +1,202 @@
+"""The world model's decoder as one flat function for imagination: no module tree, one TorchScript
+graph per call.
+
+A decoder call of the shipped model (hidden 128, 2 layers) on one token is ~6 us of arithmetic but
+cost ~730 us through the module tree: hundreds of ATen ops each dispatched from Python
+(issue 32). Here the weights of every layer are plain tensors in lists and one scripted function
+runs the whole call (embedding, blocks, final LayerNorm), so the per-op cost is the TorchScript
+interpreter's, not Python's.
+
+The same ops run in the same order as `WorldModel.hidden_states` with a KV cache (F.linear,
+F.layer_norm, the grouped-query matmuls, softmax), so a call on the same tokens gives the same
+numbers up to the rounding of matmuls of other shapes.
+
+The cache here (`RowCache`) differs from gpt.KVCache in one way that matters for speculative
+decoding (world/speculative.py): every row has its own length and a call writes each row's new
+tokens at that row's own columns. Rows are stored left-aligned (row i holds columns
+[0, lengths[i]), so a key's column is its position), and a query sees the columns up to its own
+position: what a row wrote past its length (a rejected draft, padding) is never read and is
+overwritten by its next call.
+"""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from ..messenger.constants import NUM_IDS
+from .base import MAX_LEN, WorldModel
+from .tokens import BLOCK, ID_SLOTS
+
+CAPACITY = MAX_LEN + BLOCK  # a row's last call may write up to a block of padding past MAX_LEN
+
+
+class RowCache:
+    """Keys and values [layers, B, kv_heads, CAPACITY, d] of B rows, each of its own length."""
+
+    def __init__(self, k: torch.Tensor, v: torch.Tensor, lengths: torch.Tensor) -> None:
+        self.k, self.v, self.lengths = k, v, lengths
+
+    def __len__(self) -> int:
+        return self.k.shape[1]
+
+    def select(self, index: torch.Tensor) -> None:
+        """Keep only the rows at `index`."""
+        self.k, self.v, self.lengths = self.k[:, index], self.v[:, index], self.lengths[index]
+
+    def extend(self, other: RowCache) -> None:
+        """Append another cache's rows (trajectories joining between steps)."""
+        self.k = torch.cat([self.k, other.k], 1)
+        self.v = torch.cat([self.v, other.v], 1)
+        self.lengths = torch.cat([self.lengths, other.lengths])
+
+
+class _Step(nn.Module):
+    """One decoder call over n new tokens of some rows of a RowCache (scripted: see the module
+    docstring). Weights are lists of per-layer tensors, not submodules."""
+
+    def __init__(self, model: WorldModel) -> None:
+        super().__init__()
+        cfg = model.decoder_config
+        self.hidden = cfg.hidden
+        self.heads = cfg.heads
+        self.kv_heads = cfg.num_kv_heads
+        self.head_dim = cfg.hidden // cfg.heads
+        attn = model.blocks[0].attn
+        self.scale = attn.scale
+        self.eps = model.ln_f.eps
+        self.block = BLOCK
+        self.num_ids = NUM_IDS
+
+        def own(t: torch.Tensor) -> torch.Tensor:
+            return t.detach().clone()
+
+        self.tok_emb = own(model.tok_emb.weight)
+        self.pos_emb = own(model.pos_emb.weight)
+        self.slot_offset = own(model._slot_offset)
+        is_id = torch.zeros(BLOCK, dtype=torch.bool)
+        is_id[torch.as_tensor(ID_SLOTS)] = True
+        self.id_slot = is_id
+        blocks = list(model.blocks)
+        self.ln1_w = [own(b.ln_1.weight) for b in blocks]
+        self.ln1_b = [own(b.ln_1.bias) for b in blocks]
+        self.qkv_w = [own(b.attn.qkv.weight) for b in blocks]
+        self.qkv_b = [own(b.attn.qkv.bias) for b in blocks]
+        self.proj_w = [own(b.attn.proj.weight) for b in blocks]
+        self.proj_b = [own(b.attn.proj.bias) for b in blocks]
+        self.ln2_w = [own(b.ln_2.weight) for b in blocks]
+        self.ln2_b = [own(b.ln_2.bias) for b in blocks]
+        self.fc_w = [own(b.mlp[0].weight) for b in blocks]
+        self.fc_b = [own(b.mlp[0].bias) for b in blocks]
+        self.out_w = [own(b.mlp[2].weight) for b in blocks]
+        self.out_b = [own(b.mlp[2].bias) for b in blocks]
+        self.lnf_w = own(model.ln_f.weight)
+        self.lnf_b = own(model.ln_f.bias)
+
+    def forward(
+        self,
+        tokens: torch.Tensor,
+        positions: torch.Tensor,
+        rows: torch.Tensor,
+        width: int,
+        id_table: torch.Tensor | None,
+        k_cache: torch.Tensor,
+        v_cache: torch.Tensor,
+    ) -> torch.Tensor:
+        """Final hidden states [A, n, H] of tokens [A, n] at positions [A, n] of cache rows `rows`
+        [A]; writes their keys and values at those positions. `width`: the largest position + 1."""
+        a, n = tokens.shape
+        h, kvh, d = self.hidden, self.kv_heads, self.head_dim
+        group = self.heads // kvh
+        slot = positions % self.block
+        x = F.embedding(tokens + self.slot_offset[slot], self.tok_emb)
+        if id_table is not None:
+            # The manual's vector of each entity id, added at id tokens (WorldModel.embed).
+            ids = tokens.clamp(0, self.num_ids - 1)
+            add = torch.gather(id_table, 1, ids.unsqueeze(-1).expand(-1, -1, h))
+            x = x + add * ((ids > 0) & self.id_slot[slot]).unsqueeze(-1).to(add.dtype)
+        # Padding past a row's last position may lie past the learned positions; it is never read.
+        x = x + F.embedding(positions.clamp(max=self.pos_emb.shape[0] - 1), self.pos_emb)
+        # A query sees the columns up to its own position (rows are left-aligned).
+        visible = torch.arange(width)[None, None, :] <= positions[:, :, None]
+        bias = torch.zeros(a, n, width).masked_fill_(~visible, float("-inf")).view(a, 1, 1, n, width)
+        cap = k_cache.shape[3]
+        # Where each new key goes in the cache viewed as [layers-slice rows * kv_heads * cap, d].
+        slots = (rows[:, None, None] * kvh + torch.arange(kvh)[None, :, None]) * cap + positions[:, None, :]
+        slots = slots.reshape(-1)
+        everyone = a == k_cache.shape[1]
+        for i in range(len(self.qkv_w)):
+            y = F.layer_norm(x, [h], self.ln1_w[i], self.ln1_b[i], self.eps)
+            q, k, v = F.linear(y, self.qkv_w[i], self.qkv_b[i]).split([h, kvh * d, kvh * d], dim=-1)
+            q = q.view(a, n, self.heads, d).transpose(1, 2)
+            k = k.view(a, n, kvh, d).transpose(1, 2)
+            v = v.view(a, n, kvh, d).transpose(1, 2)
+            kc, vc = k_cache[i], v_cache[i]
+            kc.view(-1, d).index_copy_(0, slots, k.reshape(-1, d))
+            vc.view(-1, d).index_copy_(0, slots, v.reshape(-1, d))
+            if everyone:  # rows is arange: read the cache in place
+                keys, values = kc[:, :, :width], vc[:, :, :width]
+            else:
+                keys, values = kc[:, :, :width].index_select(0, rows), vc[:, :, :width].index_select(0, rows)
+            qg = q.reshape(a, kvh, group * n, d)
+            scores = (qg @ keys.transpose(-1, -2)) * self.scale
+            scores = (scores.view(a, kvh, group, n, width) + bias).view(a, kvh, group * n, width)
+            att = (torch.softmax(scores, dim=-1) @ values).reshape(a, self.heads, n, d)
+            x = x + F.linear(att.transpose(1, 2).reshape(a, n, h), self.proj_w[i], self.proj_b[i])
+            y = F.layer_norm(x, [h], self.ln2_w[i], self.ln2_b[i], self.eps)
+            x = x + F.linear(F.gelu(F.linear(y, self.fc_w[i], self.fc_b[i])), self.out_w[i], self.out_b[i])
+        return F.layer_norm(x, [h], self.lnf_w, self.lnf_b, self.eps)
+
+
+class FlatDecoder:
+    """A WorldModel's decoder for imagination, as of the weights it was built from (`for_model`
+    rebuilds it when they change). Kinds with cross-attention (Standard) are not supported."""
+
+    def __init__(self, model: WorldModel, script: bool = True) -> None:
+        if not supports(model):
+            raise ValueError(f"the flat decoder does not support a {model.kind} model (cross-attention)")
+        cfg = model.decoder_config
+        self.layers, self.kv_heads, self.head_dim = cfg.layers, cfg.num_kv_heads, cfg.hidden // cfg.heads
+        self.dtype = next(model.parameters()).dtype
+        with torch.no_grad():
+            step = _Step(model).eval()
+            # Scripting removes Python from the per-op path; freezing folds the weights into the
+            # graph as constants. (Measured on the shipped model in benchmarks/imagination.py.)
+            self._step = torch.jit.freeze(torch.jit.script(step)) if script else step
+        self.obs_head, self.reward_head, self.done_head = model.obs_head, model.reward_head, model.done_head
+
+    @staticmethod
+    def for_model(model: WorldModel) -> FlatDecoder:
+        """The model's flat decoder, built once per version of its weights (an optimizer step or a
+        load changes a parameter's version, so the copy here never goes stale)."""
+        version = tuple((id(p), p._version) for p in model.parameters())
+        cached = getattr(model, "_flat_decoder", None)
+        if cached is None or cached[0] != version:
+            cached = (version, FlatDecoder(model))
+            object.__setattr__(model, "_flat_decoder", cached)  # not a submodule: no state_dict entry
+        return cached[1]
+
+    def new_cache(self, batch: int) -> RowCache:
+        shape = (self.layers, batch, self.kv_heads, CAPACITY, self.head_dim)
+        z = torch.zeros(shape, dtype=self.dtype)
+        return RowCache(z, z.clone(), torch.zeros(batch, dtype=torch.long))
+
+    def __call__(
+        self, tokens: torch.Tensor, cache: RowCache, id_table: torch.Tensor | None, rows: torch.Tensor | None = None
+    ) -> torch.Tensor:
+        """Hidden states [A, n, H] of n new tokens [A, n] for cache rows `rows` (default: all), placed
+        at each row's length; the lengths are not advanced (the caller accepts what it keeps)."""
+        rows = torch.arange(len(cache)) if rows is None else rows
+        n = tokens.shape[1]
+        positions = cache.lengths[rows][:, None] + torch.arange(n)
+        width = int(positions[:, -1].max()) + 1
+        return self._step(tokens, positions, rows, width, id_table, cache.k, cache.v)
+
+
+def supports(model: WorldModel) -> bool:
+    """Whether the flat decoder can run this model (every kind but the cross-attending Standard)."""
+    return not model.decoder_config.cross_attention
+
+
+__all__ = ["CAPACITY", "FlatDecoder", "RowCache", "supports"]
