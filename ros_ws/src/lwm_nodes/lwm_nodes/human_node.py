@@ -194,7 +194,7 @@ class HumanNode(JsonNode):
     def next_episode(self, seed: int | None = None, restart: bool = False) -> str:
         """Start the next episode of this game (the next seed, or `seed`), or with `restart` this
         episode again from its start: the environment resets and the planner opens a fresh review."""
-        if self.episode is None:
+        if self.episode is None and (restart or seed is None):
             raise ValueError("no episode yet: the environment has not said which game it plays")
         if self.executing is not None:
             raise ValueError(
