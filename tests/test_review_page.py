@@ -258,7 +258,7 @@ def test_review_in_the_browser(unnamed_page_system, browser):
     report = browser.find_element("id", "report-title").text
     assert report.startswith("report of review newall-test:") and ", plan " in report and "real return" in report
     assert painted_cells(browser, "real") >= 2 and painted_cells(browser, "planned") >= 2
-    shoot(browser, tmp_path, "review_page_report.png")
+    shoot(browser, tmp_path, "review_page_report.png", "report")
     # The review is over: its answers are off, and the page says why; the planner refuses one anyway.
     assert all(browser.find_element("id", b).get_attribute("disabled") for b in ("approve", "reject", "abort"))
     assert browser.find_element("id", "stop-execution").get_attribute("title") == "the agent is not playing"
