@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Build ros_ws/src/lwm_interfaces (the service types) and install it into .venv, idempotently.
-# The recipe and its three workarounds are those measured in shared/docs/ros2-from-pypi.md.
+# Why each step is needed: docs/ros.md, "Building the service type".
 set -euo pipefail
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 venv="$root/.venv"

@@ -194,6 +194,96 @@ def review_loop(base: str) -> list[str]:
     ]
 
 
+def review_loop_variants(base: str) -> list[str]:
+    """The review loop with plans and learning rounds imagined raw or under the game's rules."""
+    lines = [
+        "| plans / learning rounds | real return, mean | won / died / time limit / aborted "
+        "| approved plans whose shown trajectory died | file |",
+        "|---|---|---|---|---|",
+    ]
+    for path, label in (
+        ("review-loop/plans-raw.jsonl", "raw / raw (`--no-constrained`)"),
+        ("review-loop/plans-rules.jsonl", "rules / raw (`--constrained`, the default)"),
+        ("review-loop/plans-and-learning-rules.jsonl", "rules / rules (`--constrained --constrained-learning`)"),
+    ):
+        games = [json.loads(line) for line in (RESULTS / path).read_text().splitlines() if line.strip()]
+        mean = sum(g["real_return"] for g in games) / len(games)
+        outcomes = [g["outcome"] for g in games]
+        counts = " / ".join(str(outcomes.count(o)) for o in ("won", "died", "time_limit", "aborted"))
+        died = sum(g["approved_plan_died"] for g in games)
+        lines.append(f"| {label} | {mean:+.2f} | {counts} | {died} | {_link(path, base)} |")
+    return lines
+
+
+def parser(base: str) -> list[str]:
+    path = "parser/accuracy.txt"
+    row = re.compile(r"^(\S+): (\d+) descriptions; identity ([\d.]+%), movement ([\d.]+%), role ([\d.]+%)$")
+    lines = ["| file | descriptions | identity | movement | role |", "|---|---|---|---|---|"]
+    for line in (RESULTS / path).read_text().splitlines():
+        m = row.match(line)
+        if m:
+            name, n, *rates = m.groups()
+            held_out = " (held out)" if "val" in name else ""
+            lines.append(f"| {name}{held_out} | {int(n):,} | " + " | ".join(rates) + " |")
+    return lines + [f"\n({_link(path, base)})"]
+
+
+def pilot(base: str) -> list[str]:
+    """The pilot's variants at equal CPU time: steps, CPU per step, dev CE at equal steps, best."""
+    path = "pilot/report.txt"
+    text = (RESULTS / path).read_text().splitlines()
+    speed, quality = {}, {}
+    for line in text:
+        words = line.split()
+        if len(words) >= 6 and words[1] in ("done", "running", "stopped"):
+            speed[words[0]] = (int(words[2]), float(words[5]))
+        elif len(words) == 8 and words[0] in speed:
+            quality[words[0]] = (words[4], words[5], words[6])
+    names = {
+        "base": "base: multi-query (1 KV head), attention dropout 0, lr 5e-4",
+        "mha": "4 KV heads (full multi-head)",
+        "attndrop": "attention dropout 0.1",
+        "lr1e-3": "lr 1e-3",
+    }
+    lines = [
+        "| variant | steps in 40 CPU-min | CPU-s/step | dev at step 1,000 / 1,250 | best dev |",
+        "|---|---|---|---|---|",
+    ]
+    for key, label in names.items():
+        steps, cpu = speed[key]
+        at1000, at1250, best = quality[key]
+        lines.append(f"| {label} | {steps:,} | {cpu:.2f} | {at1000} / {at1250} | {best} |")
+    return lines
+
+
+def load(base: str) -> list[str]:
+    """`ros_stress.py load`: one client against 8, per run, from the logs of results/ros-stress/."""
+    one = re.compile(r"^one client: .*?([\d.]+) calls/s")
+    many = re.compile(r"^8 clients: .*?([\d.]+) calls/s, +([\d.]+) steps/s.*p50 (\d+) ms, p99 (\d+) ms")
+    lines = [
+        "| simulator version, checkpoint | run | one client | 8 clients | ratio (calls/s) | 8 clients' p50 / p99 |",
+        "|---|---|---|---|---|---|",
+    ]
+    for path, label in (
+        ("ros-stress/load-worker-step32000.log", "worker process, EMMA-LWM step 32,000"),
+        ("ros-stress/load-worker-step17000.log", "worker process, EMMA-LWM step 17,000"),
+        ("ros-stress/load-thread-step17000.log", "batch in a thread of the node, step 17,000"),
+    ):
+        run, single = 0, None
+        for line in (RESULTS / path).read_text().splitlines():
+            if m := one.match(line):
+                single = float(m.group(1))
+            elif (m := many.match(line)) and single is not None:
+                run += 1
+                calls = float(m.group(1))
+                lines.append(
+                    f"| {label} ({_link(path, base)}) | {run} | {single:.1f} calls/s | {calls:.1f} calls/s "
+                    f"| {calls / single:.1f}x | {m.group(3)} / {m.group(4)} ms |"
+                )
+                single = None
+    return lines
+
+
 TABLES: dict[str, Callable[[str], list[str]]] = {
     "summary": summary,
     "table1": table1,
@@ -202,6 +292,10 @@ TABLES: dict[str, Callable[[str], list[str]]] = {
     "consistency": consistency,
     "table3": table3,
     "review-loop": review_loop,
+    "review-loop-variants": review_loop_variants,
+    "parser": parser,
+    "pilot": pilot,
+    "load": load,
 }
 BLOCK = re.compile(r"(<!-- table:([\w-]+) -->\n)(.*?)(<!-- /table:\2 -->)", re.S)
 

@@ -2,7 +2,7 @@
 # Run the whole test suite N times while a CPU burner holds one core, then print the failures per
 # test and the slowest tests. What CI must survive: a loaded 2-core machine.
 #
-#   scripts/stress_ci.sh 10                      # the figure the README quotes
+#   scripts/stress_ci.sh 10                      # the figure docs/testing.md quotes
 #   scripts/stress_ci.sh 3 -k "ros or batching"  # extra arguments go to pytest
 #
 # Each run's JUnit XML and output go to a directory of its own (default ~/.cache/lwm-stress/<time>,

@@ -4,7 +4,7 @@ reviewer in the other; discovery reaches the subnet and Fast DDS is held to UDP,
 cross through shared memory. The review loop must complete across them.
 
 Needs root and `ip netns` (skips with the reason otherwise). What was measured about this setup
-is at the end of shared/docs/ros2-from-pypi.md.
+is in docs/ros.md, "Several hosts".
 """
 
 from __future__ import annotations

@@ -37,7 +37,7 @@ def test_schema_is_versioned_and_its_examples_validate(kind):
     schema = json.loads((messages.SCHEMA_DIR / f"{kind}.schema.json").read_text())
     assert "version" in schema["required"] and schema["properties"]["version"]["const"] == messages.version(kind)
     assert messages.version(kind) >= messages.VERSION
-    assert schema["examples"], "the README points readers to the schema's example"
+    assert schema["examples"], "docs/ros.md points readers to the schema's example"
     for example in schema["examples"]:
         assert messages.parse(kind, json.dumps(example)) == example
         wrong = copy.deepcopy(example)

@@ -1,4 +1,4 @@
-"""Scenario tests that pin each rule of Messenger stage 2 (shared/docs/messenger-wm.md §1) with
+"""Scenario tests that pin each rule of Messenger stage 2 (docs/game.md, "The game") with
 hand-worked half-cell positions. Positions are (row, col) in half-cells; cell = half // 2."""
 
 from __future__ import annotations

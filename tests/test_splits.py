@@ -1,4 +1,4 @@
-"""The game splits follow the rules of shared/docs/messenger-wm.md §2."""
+"""The game splits follow the rules of docs/game.md, "The benchmark"."""
 
 from __future__ import annotations
 

@@ -13,7 +13,7 @@ from ..errors import LwmError
 from ..messenger.constants import SPLITS as ALL_SPLITS
 from .args import LwmParser, add_dataclass_arguments, nonnegative_int, positive_float, positive_int
 
-PAPER = {  # real return, from the paper (shared/docs/messenger-wm.md §4)
+PAPER = {  # real return, the paper's Table 3 (30 games per split)
     ("online_il", "observational"): (0.75, -0.41, -0.21),
     ("online_il", "emma"): (1.01, 0.96, 0.62),
     ("online_il", "oracle"): (1.04, 0.85, 0.91),

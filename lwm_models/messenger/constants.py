@@ -1,4 +1,4 @@
-"""Fixed facts of Messenger stage 2 (see shared/docs/messenger-wm.md §1 and §2)."""
+"""Fixed facts of Messenger stage 2 (docs/game.md states them)."""
 
 from __future__ import annotations
 

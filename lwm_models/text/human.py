@@ -1,7 +1,7 @@
 """Loader of human-written Messenger description files.
 
 The original Messenger description files may not be shipped with the project (see
-shared/docs/messenger-wm.md §2), so users pass their paths and this module reads them.
+docs/game.md, "Descriptions"), so users pass their paths and this module reads them.
 
 Format: a JSON object identity -> role (enemy | message | goal) -> movement (chaser | fleeing |
 immovable | unknown) -> list of strings. "unknown" entries (the text gives no movement) are not

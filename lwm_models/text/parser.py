@@ -7,8 +7,8 @@ lexicon, since people write "falcon", "scholar" or "humanoid"), earliest in the 
 description with no known keyword falls back to the nearest identity name in the frozen text
 encoder's embedding space, when an encoder is given. Movement and role: ordered keyword rules
 (negated motion before motion, "away" before "toward", enemy cues before goal and message cues).
-Its accuracy on the human-written descriptions is measured by `lwm parser-accuracy` and in the
-README.
+Its accuracy on the human-written descriptions is measured by `lwm parser-accuracy`
+(docs/world-models.md, results/parser/accuracy.txt).
 """
 
 from __future__ import annotations

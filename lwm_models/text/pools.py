@@ -1,4 +1,4 @@
-"""Per-split description pools, disjoint across splits (shared/docs/messenger-wm.md §2).
+"""Per-split description pools, disjoint across splits (docs/game.md, "Descriptions").
 
 A description seen in training must never appear in an evaluation manual, otherwise the
 generalisation splits would partly test memorised text. So every distinct description is given to

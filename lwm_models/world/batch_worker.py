@@ -3,7 +3,7 @@
 In the simulator node the batch worker shared one GIL with the ROS executor threads that receive,
 parse and answer the calls. Under 8 clients that process used 97% of one core while the other
 core was idle, and the ROS work cost about a quarter of the calls per second that the same batch
-ran without ROS (measured; README, "Under load and abuse"). Here the server process keeps the
+ran without ROS (measured; docs/benchmarks.md, "The simulator under load"). Here the server process keeps the
 manual, parses requests, builds each call's track (its conditioning, start observations, actions)
 and answers; the worker process only admits tracks, steps the model and sends back what was
 imagined. A call's answer is the same as in a thread: the same model, the same seeded random

@@ -9,7 +9,7 @@ distribution restricted to the tokens the rules allow after what the row has ima
 (the model's probabilities renormalised over them), so the model still decides everything the
 rules leave open: where a chaser goes, whether a collision in reach happens.
 
-The rules (shared/docs/messenger-wm.md §1), from the previous observation and the action:
+The rules (docs/game.md, "The game"), from the previous observation and the action:
 - an entity channel keeps its identity or becomes empty, and only when the entity was within
   collision reach of the avatar's new cell (`_could_collide`: the most any movement allows when
   the entities' half-cell positions are unknown); an empty channel stays empty;

@@ -158,7 +158,7 @@ def run(make_node: Callable[[], Node], stop: threading.Event | None = None, thre
     (the simulator's service calls wait for their batch).
 
     rclpy's own signal handlers are off: they race with an early signal; an Event set by our
-    handlers ends the spin loop instead (the pattern measured in shared/docs/ros2-from-pypi.md).
+    handlers ends the spin loop instead (why: docs/ros.md, "Shutting down").
     Work still running in the node's own threads (learning, imagination calls) is abandoned, not
     waited for: the process ends with os._exit. Nothing acknowledged is lost that way: the ledger
     commits every record as it happens, and a restarted node resumes the review from it (the same
