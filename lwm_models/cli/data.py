@@ -7,7 +7,7 @@ import json
 import sys
 from pathlib import Path
 
-from ..messenger.constants import DEFAULT_MAX_STEPS
+from ..messenger.constants import DEFAULT_MAX_STEPS, SPLITS
 from .args import fraction, nonnegative_int, positive_int
 
 
@@ -36,6 +36,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--max-games", type=positive_int, default=None, help="keep only the first N games of each split (default: all)"
     )
     p.add_argument("--max-steps", type=positive_int, default=DEFAULT_MAX_STEPS, help="time limit in actions")
+    p.add_argument(
+        "--splits",
+        nargs="+",
+        choices=SPLITS,
+        default=list(SPLITS),
+        metavar="SPLIT",
+        help="generate only these splits (each split is seeded on its own, so its episodes do not change)",
+    )
     p.add_argument("--typo-rate", type=fraction, default=0.0, help="typo rate of generated descriptions")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run_generate)
@@ -93,6 +101,7 @@ def run_generate(args: argparse.Namespace) -> int:
         train_episodes_per_game=args.episodes_per_game,
         max_games=args.max_games,
         max_steps=args.max_steps,
+        splits=tuple(s for s in SPLITS if s in args.splits),
         text_source=source,
         progress_factory=factory,
     )
