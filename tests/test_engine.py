@@ -47,8 +47,9 @@ def test_an_episode_does_not_depend_on_its_batch():
 
 
 def test_policy_returns_match_the_reference_figures():
-    # Reference (shared doc §2, 100 games): go_to_goal ~ +1.2..1.3, get_message +0.56,
-    # survive +0.09, random -0.47, suicide -0.98. Tolerances cover sampling noise of 3,000 episodes.
+    # The original implementation's returns (docs/game.md, "Behaviour policies"; 100 games):
+    # go_to_goal ~ +1.2..1.3, get_message +0.56, survive +0.09, random -0.47, suicide -0.98.
+    # Tolerances cover sampling noise of 3,000 episodes.
     games = load_split("train")
     rng = np.random.default_rng(0)
     n = 3000

@@ -1,5 +1,5 @@
 """How the agent's policy learns: behaviour cloning of the expert on the training games (the
-warm start), online imitation inside a world model (§4), and evaluation in the real game.
+warm start), online imitation inside a world model (docs/benchmarks.md, "Table 3"), and evaluation in the real game.
 
 Online imitation: the learner acts in imagination (sampling), the expert (go_to_goal reading the
 true manual, i.e. the simulated human) labels every imagined state, and the loss is

@@ -1,4 +1,4 @@
-"""The EMMA policy (§4): it reads the manual the way EMMA-LWM does and acts on the grid.
+"""The EMMA policy (docs/benchmarks.md, "Table 3"): it reads the manual the way EMMA-LWM does and acts on the grid.
 
 The frozen encoder's description tokens, projected to the policy's width, are read by
 `DescriptionAttention` (the module EMMA-LWM reads the manual with) with the policy's own id

@@ -56,7 +56,7 @@ STARTS: tuple[tuple[tuple[int, int], ...], ...] = tuple(itertools.permutations(C
 itertools.permutations(CORNERS), i.e. lexicographic in the corner order above. Evaluation that must
 cover every start uses start = episode % 24."""
 
-# Training triples: each identity has exactly 2 roles x 2 movements in training (§2).
+# Training triples: each identity has exactly 2 roles x 2 movements in training (docs/game.md).
 _TRAIN_GROUPS: tuple[tuple[tuple[str, ...], tuple[str, ...], tuple[str, ...]], ...] = (
     (("airplane", "ball", "dog", "sword"), ("message", "goal"), ("chaser", "immovable")),
     (("bird", "fish", "mage", "robot"), ("enemy", "goal"), ("chaser", "fleeing")),

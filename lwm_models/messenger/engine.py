@@ -190,7 +190,7 @@ class BatchedMessenger:
         rewards[picks] = REWARD_PICKUP
         rewards[wins] = REWARD_WIN
         # The message leaves the board on any overlap (a pick-up, or a death in the same step:
-        # it is removed before the avatar is); on a win the goal leaves it (spec §1, last frame).
+        # it is removed before the avatar is); on a win the goal leaves it (docs/game.md, "The last frame").
         self.present[hit[:, MESSAGE], MESSAGE] = False
         self.present[wins, GOAL] = False
         self.has_message |= picks

@@ -130,7 +130,7 @@ class MessengerEnv:
             self.avatar = target
 
         # (3) Collisions in priority order: enemy, goal without message, message, goal with it.
-        # What the last frame shows (spec §1): a message the avatar overlaps leaves the board even
+        # What the last frame shows (docs/game.md): a message the avatar overlaps leaves the board even
         # when the avatar dies in the same step (it is removed before the avatar is), and on a win
         # the goal leaves the board while the avatar (carrying the message) stays.
         enemy, message, goal = (self._overlaps(k) for k in range(3))

@@ -1,4 +1,4 @@
-"""The five behaviour policies that generate Messenger-WM trajectories (§2), vectorised over games.
+"""The five behaviour policies that generate Messenger-WM trajectories (docs/game.md), vectorised over games.
 
 They read the observation with privileged knowledge of each entity's role (they play the true
 manual): positions are cells, distances Manhattan in cells. Every random draw comes from the

@@ -1,6 +1,6 @@
-"""Evaluation of world models as in the paper (§3): teacher-forced cross-entropy per test split
-(Table 1), imagination metrics from replayed test episodes (Table 2), and loss against the length
-of the history prefix.
+"""Evaluation of world models as in the paper (docs/game.md, "What is measured"): teacher-forced
+cross-entropy per test split (Table 1), imagination metrics from replayed test episodes (Table 2),
+and loss against the length of the history prefix.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The world models' tokenizer (§3): a step is a block of 15 tokens,
+"""The world models' tokenizer (docs/world-models.md): a step is a block of 15 tokens,
 
     [action that led here, 12 observation tokens, reward label, done label]
 
