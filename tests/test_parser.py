@@ -8,7 +8,8 @@ import pytest
 
 from lwm_models.messenger.constants import ALL_TRIPLES, IDENTITIES
 from lwm_models.text import generate_descriptions, load_description_file
-from lwm_models.text.parser import parse_description, parser_accuracy, route_identity_id
+from lwm_models.text.parser import parse_description, parse_movement, parse_role, parser_accuracy, route_identity_id
+from lwm_models.text.stress import stress_texts
 
 VAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "messenger-texts" / "text_val.json"
 
@@ -31,6 +32,48 @@ def test_generated_descriptions_parse_back_to_their_triple():
 )
 def test_examples(text, expected):
     assert parse_description(text) == expected
+
+
+@pytest.mark.parametrize(
+    "text, expected",
+    [
+        # a negated role rules that role out; the positive cue elsewhere decides
+        ("the hound is not the goal; it holds the message and stays put.", ("dog", "immovable", "message")),
+        ("not an enemy: the queen chases you, she is the destination.", ("queen", "chaser", "goal")),
+        ("the robot isn't the message, it runs away and it is deadly.", ("robot", "fleeing", "enemy")),
+        # two negated roles leave the third
+        ("the sword is neither the enemy nor the goal, and it never moves.", ("sword", "immovable", "message")),
+        ("the ball isn't an enemy and isn't the goal. it flees.", ("ball", "fleeing", "message")),
+        # negated motion: "doesn't move" is immovable, a negated chase is not a chase
+        ("the ship doesn't move and is the enemy.", ("ship", "immovable", "enemy")),
+        ("the mage doesn't chase you, it runs away from you, and it is the goal.", ("mage", "fleeing", "goal")),
+        ("the owl won't budge and carries the note.", ("bird", "immovable", "message")),
+        # a negation ends with its clause: only "move" is negated here, not the goal
+        ("the bird that doesn't move is the crucial goal.", ("bird", "immovable", "goal")),
+        # the stress set's movement phrasings and typos
+        ("the jet backs off, it's the enemy", ("airplane", "fleeing", "enemy")),
+        ("ok so the birdie heads your way and it's the goal", ("bird", "chaser", "goal")),
+        ("the wiazrd doesnt' move and is the enmey", ("mage", "immovable", "enemy")),
+    ],
+)
+def test_negations_and_free_form(text, expected):
+    assert parse_description(text) == expected
+
+
+def test_a_lone_negation_is_no_answer():
+    # "not the goal" alone leaves enemy and message: the parser must not answer "goal"
+    assert parse_role("the hound is not the goal") is None
+    assert parse_movement("the hound is not chasing you") is None
+    assert parse_role("the harmless hound is the message") == "message"
+
+
+def test_stress_set_negation_style():
+    # The negation style fails without negation handling (tuning part 44% role, held-out 36%
+    # before it was written), and the held-out part was never tuned on.
+    tune = parser_accuracy(stress_texts("tune", "negation"))
+    heldout = parser_accuracy(stress_texts("heldout", "negation"))
+    assert tune["role"] >= 0.95 and tune["movement"] >= 0.95, tune
+    assert heldout["role"] >= 0.65, heldout
 
 
 def test_routing():

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 from pathlib import Path
 
@@ -26,8 +27,24 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--imagination-episodes", type=nonnegative_int, default=200, help="episodes per split to imagine (0: skip)"
     )
+    texts = p.add_mutually_exclusive_group()
+    texts.add_argument(
+        "--texts",
+        nargs="+",
+        default=None,
+        metavar="PATH",
+        help="re-draw the manuals from these description files (triples they lack: generated text, with a warning)",
+    )
+    texts.add_argument(
+        "--stress",
+        default=None,
+        metavar="STYLE",
+        help="re-draw the manuals from one style of the held-out stress set (lwm_models/text/stress_set.json)",
+    )
     p.add_argument(
-        "--texts", nargs="+", default=None, metavar="PATH", help="re-draw the manuals from these description files"
+        "--no-fill",
+        action="store_true",
+        help="with --texts: refuse, instead of filling with generated text, when the files lack a triple in use",
     )
     p.add_argument(
         "--constrained",
@@ -53,12 +70,30 @@ def run(args: argparse.Namespace) -> int:
         from ..text import DescriptionPools
 
         pools = DescriptionPools.from_files(args.texts, seed=args.seed)
+    elif args.stress:
+        from ..text.stress import stress_pools
+
+        pools = stress_pools(args.stress)
     splits = {}
+    filled: dict[str, dict[str, int]] = {}
     for name in args.splits:
         data = SplitTokens(args.data, name, None if pools else encoder, model.route)
         if pools is not None:
             redraw_manuals(data, pools, encoder, args.seed)
+            filled[name] = filled_slots(data, pools, args.loss_episodes)
         splits[name] = data
+    for name, f in filled.items():
+        if f["filled"]:
+            # The files lack these triples, so part of every figure below is about generated text.
+            share = f["filled"] / f["slots"]
+            line = (
+                f"{name}: {f['filled']} of {f['slots']} manual slots ({share:.1%}) use generated descriptions: "
+                "the description files have none of their triples"
+            )
+            if args.no_fill:
+                print(f"lwm eval: refused (--no-fill): {line}", file=sys.stderr)
+                return 2
+            print(f"warning: {line}", file=sys.stderr)
     began = time.perf_counter()
     results = evaluate_model(
         model, splits, args.loss_episodes, args.imagination_episodes, args.seed, constrained=args.constrained
@@ -67,7 +102,8 @@ def run(args: argparse.Namespace) -> int:
         "checkpoint": str(args.checkpoint),
         "kind": kind,
         "steps": config.get("steps"),
-        "texts": args.texts or "dataset",
+        "texts": args.texts or (f"stress:heldout:{args.stress}" if args.stress else "dataset"),
+        "filled_slots": filled,
         "seed": args.seed,
         "results": results,
         "seconds": round(time.perf_counter() - began, 1),
@@ -114,6 +150,17 @@ def run(args: argparse.Namespace) -> int:
         args.out.write_text(json.dumps(record, indent=2))
         print(f"results written to {args.out}")
     return 0
+
+
+def filled_slots(data, pools, limit: int | None = None) -> dict[str, int]:
+    """How many manual slots of the episodes the cross-entropy reads (`limit` of them) drew from a
+    pool that `pools` filled with generated text."""
+    from ..messenger.constants import ALL_TRIPLES
+
+    fallbacks = set(getattr(pools, "fallbacks", ()))
+    parses = [data.ds.parses[int(e)] for e in data.evaluated_episodes(limit)]
+    slots = [(data.split, ALL_TRIPLES[int(i)]) for parse in parses for i in parse]
+    return {"slots": len(slots), "filled": sum(s in fallbacks for s in slots)}
 
 
 def plot_loss_by_prefix(curves: dict[str, dict], path, title: str) -> None:

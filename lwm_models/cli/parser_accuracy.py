@@ -3,13 +3,17 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser("parser-accuracy", help="accuracy of the offline description parser (GPTHard's router)")
+    p.add_argument("--texts", nargs="+", type=Path, default=[], metavar="PATH", help="human-written description files")
     p.add_argument(
-        "--texts", nargs="+", type=Path, required=True, metavar="PATH", help="human-written description files"
+        "--stress",
+        action="store_true",
+        help="also the project's stress set, per part (tune, heldout) and style (lwm_models/text/stress_set.json)",
     )
     p.set_defaults(func=run)
 
@@ -17,8 +21,17 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from ..text import load_description_file
     from ..text.parser import parser_accuracy
+    from ..text.stress import PARTS, stress_styles, stress_texts
 
+    if not args.texts and not args.stress:
+        print("lwm parser-accuracy: give --texts PATH ... and/or --stress", file=sys.stderr)
+        return 2
     rows = {str(path): parser_accuracy(load_description_file(path)) for path in args.texts}
+    if args.stress:
+        for part in PARTS:
+            rows[f"stress {part}"] = parser_accuracy(stress_texts(part))
+            for style in stress_styles():
+                rows[f"stress {part} {style}"] = parser_accuracy(stress_texts(part, style))
     for path, acc in rows.items():
         print(
             f"{path}: {acc['descriptions']} descriptions; identity {acc['identity']:.1%}, "

@@ -3,12 +3,23 @@ description states. It stands in for the paper's ChatGPT in the GPTHard baseline
 the identity, to route a description to an entity), so call it what it is: a keyword parser.
 
 Identity: the longest keyword match from a hand-written synonym list (wider than the generator's
-lexicon, since people write "falcon", "scholar" or "humanoid"), earliest in the text on ties. A
-description with no known keyword falls back to the nearest identity name in the frozen text
-encoder's embedding space, when an encoder is given. Movement and role: ordered keyword rules
-(negated motion before motion, "away" before "toward", enemy cues before goal and message cues).
-Its accuracy on the human-written descriptions is measured by `lwm parser-accuracy`
-(docs/world-models.md, results/parser/accuracy.txt).
+lexicon, since people write "falcon", "scholar" or "humanoid"; a plural or a pet form such as
+"birdie" counts), earliest in the text on ties. A word one typo away from a keyword (a letter
+swapped, dropped, doubled or changed; five letters or more, swaps only for four) counts as that
+keyword. A description with no known keyword falls back to the nearest identity name in the
+frozen text encoder's embedding space, when an encoder is given.
+
+Movement and role: ordered keyword rules (negated motion before motion, "away" before "toward",
+enemy cues before goal and message cues), read after the same typo correction. A cue inside a
+negation's scope does not count: "the hound is not the goal" says nothing for goal. A scope runs
+from "not", "n't", "never", "no", "nor", "neither" to the end of its clause (punctuation, a
+conjunction such as "and" or "but", or a verb starting a new predicate: in "the bird that doesn't
+move is the goal" only "move" is negated), six words at most. When a field's cues are all negated
+and they rule out two of its three values ("neither the enemy nor the goal"), the third is the
+answer. Cues that only occur negated ("won't budge") are the table's "negative_polarity", which a
+negation does not cancel.
+
+Accuracy: `lwm parser-accuracy` (human-written files, the stress set) and docs/language.md.
 """
 
 from __future__ import annotations
@@ -35,45 +46,153 @@ def _pattern(words: tuple[str, ...]) -> re.Pattern:
     return re.compile(r"\b(" + "|".join(re.escape(w) for w in sorted(words, key=len, reverse=True)) + r")")
 
 
+# A plural or a pet form ("birdie", "fishy", "doggies") names the same sprite.
 _IDENTITY_PATTERNS = {
-    ident: re.compile(r"\b(" + "|".join(re.escape(w) for w in sorted(kws, key=len, reverse=True)) + r")s?\b")
+    ident: re.compile(
+        r"\b(" + "|".join(re.escape(w) for w in sorted(kws, key=len, reverse=True)) + r")(?:s|es|ie|ies|y)?\b"
+    )
     for ident, kws in IDENTITY_KEYWORDS.items()
 }
 _MOVEMENT_PATTERNS = [(m, _pattern(w)) for m, w in MOVEMENT_RULES]
 _ROLE_PATTERNS = [(r, _pattern(w)) for r, w in ROLE_RULES]
+_NEGATIVE_POLARITY = _pattern(tuple(_TABLES.get("negative_polarity", ())))
+
+_NEGATOR = re.compile(r"\b(not|never|no|nor|neither|nowhere)\b|n't\b")
+# Where a negation's scope ends: punctuation, or a conjunction that starts a new clause.
+_SCOPE_END = re.compile(
+    r"[.,;:!?()\u2014]|\b(but|and|so|while|yet|whereas|though|although|instead|rather|"
+    r"is|are|was|has|have|holds|carries|contains|possesses|bears|keeps)\b"
+)
+_SCOPE_WORDS = 6
 
 
-def parse_identity(text: str, encoder=None) -> str | None:
-    """The identity a description is about: longest keyword, earliest on ties; else nearest name
-    in the encoder's embedding space (if given); else None."""
-    lowered = text.lower()
+def _negated_spans(lowered: str) -> list[tuple[int, int]]:
+    """Character spans of the text that lie inside a negation's scope."""
+    spans = []
+    for m in _NEGATOR.finditer(lowered):
+        lo = m.end()
+        rest = lowered[lo:]
+        end = len(rest)
+        stop = _SCOPE_END.search(rest)
+        if stop:
+            end = stop.start()
+        words = list(re.finditer(r"\S+", rest[:end]))
+        if len(words) > _SCOPE_WORDS:
+            end = words[_SCOPE_WORDS - 1].end()
+        spans.append((lo, lo + end))
+    return spans
+
+
+def _is_negated(spans: list[tuple[int, int]], start: int) -> bool:
+    return any(lo <= start < hi for lo, hi in spans)
+
+
+@lru_cache(maxsize=1)
+def _vocabulary() -> dict[int, tuple[str, ...]]:
+    """Whole-word keywords by length, the targets of typo correction."""
+    words: set[str] = set()
+    tables = [w for kws in IDENTITY_KEYWORDS.values() for w in kws]
+    tables += [w for _, kws in MOVEMENT_RULES for w in kws] + [w for _, kws in ROLE_RULES for w in kws]
+    tables += list(_TABLES.get("typo_targets", ()))
+    for phrase in tables:
+        words.update(t for t in re.findall(r"[a-z']+", phrase) if len(t) >= 4)
+    by_len: dict[int, list[str]] = {}
+    for w in sorted(words):
+        by_len.setdefault(len(w), []).append(w)
+    return {n: tuple(ws) for n, ws in by_len.items()}
+
+
+def _one_typo(word: str, target: str) -> bool:
+    """Is `word` one swap, drop, doubling or change of a letter away from `target`?"""
+    if word == target:
+        return False
+    n, m = len(word), len(target)
+    if n == m:
+        diff = [i for i in range(n) if word[i] != target[i]]
+        if len(diff) == 1:
+            return n >= 5
+        i, j = diff if len(diff) == 2 else (0, 0)
+        return len(diff) == 2 and j == i + 1 and word[i] == target[j] and word[j] == target[i]
+    if abs(n - m) != 1 or min(n, m) < 5:
+        return False
+    short, long_ = (word, target) if n < m else (target, word)
+    i = 0
+    while i < len(short) and short[i] == long_[i]:
+        i += 1
+    return short[i:] == long_[i + 1 :]
+
+
+@lru_cache(maxsize=4096)
+def _correct_word(word: str) -> str:
+    vocab = _vocabulary()
+    if len(word) < 4 or word in vocab.get(len(word), ()):
+        return word
+    for n in (len(word), len(word) - 1, len(word) + 1):
+        for target in vocab.get(n, ()):
+            if _one_typo(word, target):
+                return target
+    return word
+
+
+# "doesnt", "does'nt", "doesnt'": a misplaced or missing apostrophe must not hide a negation.
+_CONTRACTION = re.compile(r"\b(does|do|did|is|are|was|were|has|have|had|can|could|would|should|wo|ca)'?n'?t'?(?=\W|$)")
+
+
+def normalise(text: str) -> str:
+    """Lowercase text with contractions mended and each word that is one typo from a keyword
+    replaced by the keyword."""
+    lowered = _CONTRACTION.sub(lambda m: m.group(1) + "n't", text.lower())
+    return re.sub(r"[a-z]+", lambda m: _correct_word(m.group(0)), lowered)
+
+
+def _find_identity(lowered: str) -> str | None:
     best = None
     for ident, pattern in _IDENTITY_PATTERNS.items():
         for m in pattern.finditer(lowered):
             key = (-(m.end() - m.start()), m.start())
             if best is None or key < best[0]:
                 best = (key, ident)
-    if best is not None:
-        return best[1]
+    return None if best is None else best[1]
+
+
+def parse_identity(text: str, encoder=None) -> str | None:
+    """The identity a description is about: longest keyword, earliest on ties (as written, else
+    after typo correction); else nearest name in the encoder's embedding space (if given); else
+    None."""
+    lowered = text.lower()
+    found = _find_identity(lowered) or _find_identity(normalise(lowered))
+    if found is not None:
+        return found
     if encoder is not None:
         return _nearest_identity(text, encoder)
     return None
 
 
-def _first_rule(text: str, rules) -> str | None:
-    lowered = text.lower()
+def _first_rule(lowered: str, rules) -> str | None:
+    """The first rule with a cue outside every negation; else the one value no negated cue rules
+    out when the other two are; else None."""
+    spans = _negated_spans(lowered)
+    ruled_out = []
     for name, pattern in rules:
-        if pattern.search(lowered):
-            return name
-    return None
+        negated = False
+        for m in pattern.finditer(lowered):
+            if lowered.startswith("less", m.end()):
+                continue  # "harmless", "aimless": the cue's opposite
+            if not _is_negated(spans, m.start()) or _NEGATIVE_POLARITY.match(lowered, m.start()):
+                return name
+            negated = True
+        if negated:
+            ruled_out.append(name)
+    left = [name for name, _ in rules if name not in ruled_out]
+    return left[0] if len(left) == 1 else None
 
 
 def parse_movement(text: str) -> str | None:
-    return _first_rule(text, _MOVEMENT_PATTERNS)
+    return _first_rule(normalise(text), _MOVEMENT_PATTERNS)
 
 
 def parse_role(text: str) -> str | None:
-    return _first_rule(text, _ROLE_PATTERNS)
+    return _first_rule(normalise(text), _ROLE_PATTERNS)
 
 
 def parse_description(text: str, encoder=None) -> tuple[str | None, str | None, str | None]:

@@ -125,14 +125,19 @@ class SplitTokens:
             out.append((tokens, lengths, self.manual_batch(episodes[part])))
         return out
 
+    def evaluated_episodes(self, limit: int | None = None) -> np.ndarray:
+        """The episodes an evaluation limited to `limit` episodes reads: evenly spaced over the split."""
+        episodes = np.arange(len(self))
+        if limit is not None and limit < len(episodes):
+            episodes = np.linspace(0, len(episodes) - 1, limit).round().astype(np.int64)
+        return episodes
+
     def full_episodes(
         self, batch: int, limit: int | None = None
     ) -> Iterator[tuple[torch.Tensor, torch.Tensor, ManualBatch]]:
         """Whole episodes, for evaluation, in batches of similar length (each batch is padded to
-        its longest episode); `limit` keeps an evenly spaced subset."""
-        episodes = np.arange(len(self))
-        if limit is not None and limit < len(episodes):
-            episodes = np.linspace(0, len(episodes) - 1, limit).round().astype(np.int64)
+        its longest episode); `limit` keeps an evenly spaced subset (`evaluated_episodes`)."""
+        episodes = self.evaluated_episodes(limit)
         episodes = episodes[np.argsort(self.lengths[episodes], kind="stable")]
         for lo in range(0, len(episodes), batch):
             chunk = episodes[lo : lo + batch]

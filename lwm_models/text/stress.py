@@ -1,0 +1,87 @@
+"""The project's free-form stress set (stress_set.json, built by scripts/make_stress_set.py).
+
+Descriptions in seven styles (casual, long-winded, negation, typos, rare synonyms, reordered
+clauses, several facts per sentence), each labelled with its (identity, movement, role), its style
+and its part: "tune" may be tuned or trained on, "heldout" never is. The parts were written with
+different templates and phrases, so a figure on "heldout" is one on wording its tuning never saw.
+
+`stress_pools` turns one style of one part into description pools of the same shape as the
+benchmark's (`DescriptionPools`), so a world model can be evaluated with manuals in that style
+(`lwm eval --stress STYLE`). Those pools are for evaluation only: every split gets the same texts,
+which would break the pools' train/test disjointness if anyone trained on them.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from functools import lru_cache
+from pathlib import Path
+
+from ..errors import LwmError
+from ..messenger.constants import ALL_TRIPLES, SPLITS, Triple
+from .pools import DescriptionPools, receiving_splits
+
+STRESS_FILE = Path(__file__).with_name("stress_set.json")
+PARTS = ("tune", "heldout")
+
+
+@dataclass(frozen=True)
+class StressEntry:
+    text: str
+    identity: str
+    movement: str
+    role: str
+    style: str
+    split: str
+
+    @property
+    def triple(self) -> Triple:
+        return (self.identity, self.movement, self.role)
+
+
+@lru_cache(maxsize=2)
+def _load(path: Path) -> tuple[tuple[str, ...], tuple[StressEntry, ...]]:
+    doc = json.loads(path.read_text(encoding="utf-8"))
+    fields = ("text", "identity", "movement", "role", "style", "split")
+    entries = tuple(StressEntry(**{k: e[k] for k in fields}) for e in doc["entries"])
+    return tuple(doc["styles"]), entries
+
+
+def stress_styles(path: str | Path = STRESS_FILE) -> tuple[str, ...]:
+    """The styles of the stress set, in its order."""
+    return _load(Path(path))[0]
+
+
+def load_stress(part: str | None = None, style: str | None = None, path: str | Path = STRESS_FILE) -> list[StressEntry]:
+    """Entries of the stress set, optionally only one part ("tune" / "heldout") and one style."""
+    styles, entries = _load(Path(path))
+    if part is not None and part not in PARTS:
+        raise LwmError(f"unknown stress-set part {part!r}; known: {', '.join(PARTS)}")
+    if style is not None and style not in styles:
+        raise LwmError(f"unknown stress-set style {style!r}; known: {', '.join(styles)}")
+    return [e for e in entries if (part is None or e.split == part) and (style is None or e.style == style)]
+
+
+def stress_texts(
+    part: str | None = None, style: str | None = None, path: str | Path = STRESS_FILE
+) -> dict[Triple, list[str]]:
+    """Descriptions by triple, the shape `parser_accuracy` and `allocate` take."""
+    out: dict[Triple, list[str]] = {}
+    for e in load_stress(part, style, path):
+        out.setdefault(e.triple, []).append(e.text)
+    return out
+
+
+def stress_pools(style: str, part: str = "heldout", path: str | Path = STRESS_FILE) -> DescriptionPools:
+    """Pools holding one style of one part for every triple in every split that can contain it
+    (evaluation only, see the module docstring)."""
+    by_triple = stress_texts(part, style, path)
+    missing = [t for t in ALL_TRIPLES if t not in by_triple]
+    if missing:
+        raise LwmError(f"the stress set's {part} part has no {style} description of {missing[0]}")
+    pools: dict[str, dict[Triple, tuple[str, ...]]] = {split: {} for split in SPLITS}
+    for triple in ALL_TRIPLES:
+        for split in receiving_splits(triple):
+            pools[split][triple] = tuple(by_triple[triple])
+    return DescriptionPools(pools, f"stress:{part}:{style}")
