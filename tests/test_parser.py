@@ -67,6 +67,17 @@ def test_a_lone_negation_is_no_answer():
     assert parse_role("the harmless hound is the message") == "message"
 
 
+def test_the_encoder_guess_never_answers_what_a_negation_denies():
+    from lwm_models.world.frozen_text import FrozenTextEncoder
+
+    encoder = FrozenTextEncoder()
+    assert parse_role("the hound is not the goal", encoder) != "goal"
+    assert parse_role("the hound is not the goal and not the enemy", encoder) == "message"
+    # no keyword says how it moves; the guess reads the clause
+    assert parse_movement("the hound is glued to its square") is None
+    assert parse_movement("the hound is glued to its square", encoder) == "immovable"
+
+
 def test_stress_set_negation_style():
     # The negation style fails without negation handling (tuning part 44% role, held-out 36%
     # before it was written), and the held-out part was never tuned on.

@@ -15,6 +15,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         action="store_true",
         help="also the project's stress set, per part (tune, heldout) and style (lwm_models/text/stress_set.json)",
     )
+    p.add_argument(
+        "--encoder",
+        action="store_true",
+        help="let the frozen text encoder guess what no keyword rule decides (slower; GPTHard routes without it)",
+    )
     p.set_defaults(func=run)
 
 
@@ -26,12 +31,17 @@ def run(args: argparse.Namespace) -> int:
     if not args.texts and not args.stress:
         print("lwm parser-accuracy: give --texts PATH ... and/or --stress", file=sys.stderr)
         return 2
-    rows = {str(path): parser_accuracy(load_description_file(path)) for path in args.texts}
+    encoder = None
+    if args.encoder:
+        from ..world.frozen_text import FrozenTextEncoder
+
+        encoder = FrozenTextEncoder()
+    rows = {str(path): parser_accuracy(load_description_file(path), encoder) for path in args.texts}
     if args.stress:
         for part in PARTS:
-            rows[f"stress {part}"] = parser_accuracy(stress_texts(part))
+            rows[f"stress {part}"] = parser_accuracy(stress_texts(part), encoder)
             for style in stress_styles():
-                rows[f"stress {part} {style}"] = parser_accuracy(stress_texts(part, style))
+                rows[f"stress {part} {style}"] = parser_accuracy(stress_texts(part, style), encoder)
     for path, acc in rows.items():
         print(
             f"{path}: {acc['descriptions']} descriptions; identity {acc['identity']:.1%}, "

@@ -17,7 +17,9 @@ conjunction such as "and" or "but", or a verb starting a new predicate: in "the 
 move is the goal" only "move" is negated), six words at most. When a field's cues are all negated
 and they rule out two of its three values ("neither the enemy nor the goal"), the third is the
 answer. Cues that only occur negated ("won't budge") are the table's "negative_polarity", which a
-negation does not cancel.
+negation does not cancel. With an encoder, a field no rule decides gets the value of the known
+phrase (the generator's lexicon and the table's whole-word cues) nearest to one of the
+description's clauses in embedding space, instead of None.
 
 Accuracy: `lwm parser-accuracy` (human-written files, the stress set) and docs/language.md.
 """
@@ -32,7 +34,15 @@ from pathlib import Path
 import numpy as np
 
 from ..messenger.constants import IDENTITIES, Triple
-from .generator import IDENTITY_SYNONYMS
+from .generator import (
+    IDENTITY_SYNONYMS,
+    MOVEMENT_ADJECTIVES,
+    MOVEMENT_CLAUSES,
+    MOVEMENT_PHRASES,
+    ROLE_NOUNS,
+    ROLE_PHRASES,
+    ROLE_PREDICATES,
+)
 
 # The keyword tables are data beside the code (what each rule means is in the file's _comment).
 _TABLES = json.loads((Path(__file__).with_name("parser_keywords.json")).read_text(encoding="utf-8"))
@@ -168,9 +178,9 @@ def parse_identity(text: str, encoder=None) -> str | None:
     return None
 
 
-def _first_rule(lowered: str, rules) -> str | None:
+def _decide(lowered: str, rules) -> tuple[str | None, list[str]]:
     """The first rule with a cue outside every negation; else the one value no negated cue rules
-    out when the other two are; else None."""
+    out when the other two are; else None. Also the values that negated cues rule out."""
     spans = _negated_spans(lowered)
     ruled_out = []
     for name, pattern in rules:
@@ -179,25 +189,38 @@ def _first_rule(lowered: str, rules) -> str | None:
             if lowered.startswith("less", m.end()):
                 continue  # "harmless", "aimless": the cue's opposite
             if not _is_negated(spans, m.start()) or _NEGATIVE_POLARITY.match(lowered, m.start()):
-                return name
+                return name, ruled_out
             negated = True
         if negated:
             ruled_out.append(name)
     left = [name for name, _ in rules if name not in ruled_out]
-    return left[0] if len(left) == 1 else None
+    return (left[0] if len(left) == 1 else None), ruled_out
 
 
-def parse_movement(text: str) -> str | None:
-    return _first_rule(normalise(text), _MOVEMENT_PATTERNS)
+def _parse_field(text: str, rules, field: str, encoder) -> str | None:
+    lowered = normalise(text)
+    found, ruled_out = _decide(lowered, rules)
+    if found is None and encoder is not None:
+        return _nearest_value(lowered, field, encoder, ruled_out)
+    return found
 
 
-def parse_role(text: str) -> str | None:
-    return _first_rule(normalise(text), _ROLE_PATTERNS)
+def parse_movement(text: str, encoder=None) -> str | None:
+    """The movement by keyword rules; with an encoder, when no rule decides, the movement of the
+    nearest known phrase in embedding space."""
+    return _parse_field(text, _MOVEMENT_PATTERNS, "movement", encoder)
+
+
+def parse_role(text: str, encoder=None) -> str | None:
+    """The role by keyword rules; with an encoder, when no rule decides, the role of the nearest
+    known phrase in embedding space."""
+    return _parse_field(text, _ROLE_PATTERNS, "role", encoder)
 
 
 def parse_description(text: str, encoder=None) -> tuple[str | None, str | None, str | None]:
-    """(identity, movement, role) as the parser reads them; None where it finds no cue."""
-    return parse_identity(text, encoder), parse_movement(text), parse_role(text)
+    """(identity, movement, role) as the parser reads them; None where it finds no cue (with an
+    encoder, an embedding-space guess instead of None)."""
+    return parse_identity(text, encoder), parse_movement(text, encoder), parse_role(text, encoder)
 
 
 def route_identity_id(text: str) -> int:
@@ -215,6 +238,37 @@ def _prototypes(encoder) -> tuple[list[str], np.ndarray]:
             texts.append(f"the {s}.")
     feats, lengths = encoder.encode_arrays(texts)
     return names, _mean_unit(feats, lengths)
+
+
+@lru_cache(maxsize=4)
+def _value_prototypes(encoder, field: str) -> tuple[list[str], np.ndarray]:
+    """Phrases that state a movement (or role): the generator's and the keyword table's own
+    phrases (whole words only, not stems), with their value."""
+    if field == "movement":
+        lexicons, rules = (MOVEMENT_PHRASES, MOVEMENT_CLAUSES, MOVEMENT_ADJECTIVES), MOVEMENT_RULES
+    else:
+        lexicons, rules = (ROLE_PHRASES, ROLE_PREDICATES, ROLE_NOUNS), ROLE_RULES
+    pairs = [(value, phrase) for lexicon in lexicons for value, phrases in lexicon.items() for phrase in phrases]
+    pairs += [(value, w) for value, words in rules for w in words if " " in w or len(w) >= 5]
+    feats, lengths = encoder.encode_arrays([phrase for _, phrase in pairs])
+    return [value for value, _ in pairs], _mean_unit(feats, lengths)
+
+
+_CLAUSE = re.compile(r"[.,;:!?()\u2014]|\b(?:and|but|while|so)\b")
+
+
+def _nearest_value(lowered: str, field: str, encoder, ruled_out: list[str]) -> str | None:
+    # Clause by clause, so that the identity and the other field's words in the sentence do not
+    # pull the embedding; the best clause-phrase pair decides. A negated clause would pull
+    # towards what it denies, so it is left out, and so are the values negated cues rule out.
+    clauses = [c.strip() for c in _CLAUSE.split(lowered) if c and c.strip() and not _NEGATOR.search(c)]
+    values, protos = _value_prototypes(encoder, field)
+    allowed = np.array([v not in ruled_out for v in values])
+    if not clauses or not allowed.any():
+        return None
+    feats, lengths = encoder.encode_arrays(clauses)
+    sims = np.where(allowed[None, :], _mean_unit(feats, lengths) @ protos.T, -np.inf)
+    return values[int(np.argmax(sims)) % len(values)]
 
 
 def _mean_unit(feats: np.ndarray, lengths: np.ndarray) -> np.ndarray:
