@@ -90,3 +90,18 @@ def test_eval_reads_a_stress_style(newall, tmp_path):
     assert cli_main.main(argv) == 0
     record = json.loads(out.read_text())
     assert record["texts"] == "stress:heldout:typos" and record["filled_slots"]["newall-test"]["filled"] == 0
+
+
+def test_generating_one_split_gives_the_same_episodes_as_generating_all(tmp_path):
+    # benchmarks/language_robustness.py runs on `lwm data generate --splits newall-test`: it must
+    # hold the very episodes and manuals of the full dataset's NewAll test
+    import numpy as np
+
+    one, every = tmp_path / "one", tmp_path / "all"
+    common = ["--max-games", "2", "--episodes-per-game", "1", "--no-progress"]
+    assert cli_main.main(["data", "generate", "--out", str(one), "--splits", "newall-test", *common]) == 0
+    assert cli_main.main(["data", "generate", "--out", str(every), *common]) == 0
+    assert sorted(p.name for p in one.iterdir() if p.is_dir()) == ["newall-test"]
+    for name in ("observations.npy", "actions.npy", "manuals.npy", "parses.npy"):
+        assert np.array_equal(np.load(one / "newall-test" / name), np.load(every / "newall-test" / name)), name
+    assert (one / "newall-test" / "texts.json").read_text() == (every / "newall-test" / "texts.json").read_text()
