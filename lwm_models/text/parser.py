@@ -68,7 +68,7 @@ _ROLE_PATTERNS = [(r, _pattern(w)) for r, w in ROLE_RULES]
 _NEGATIVE_POLARITY = _pattern(tuple(_TABLES.get("negative_polarity", ())))
 
 _NEGATOR = re.compile(r"\b(not|never|no|nor|neither|nowhere)\b|n't\b")
-# Where a negation's scope ends: punctuation, or a conjunction that starts a new clause.
+# Where a negation's scope ends: punctuation, a conjunction, or a verb that starts a new predicate.
 _SCOPE_END = re.compile(
     r"[.,;:!?()\u2014]|\b(but|and|so|while|yet|whereas|though|although|instead|rather|"
     r"is|are|was|has|have|holds|carries|contains|possesses|bears|keeps)\b"
