@@ -18,7 +18,7 @@ import os
 from .base import WorldModel
 from .flat_decoder import supports
 from .imagine import Rows
-from .speculative import FED, FastRows
+from .speculative import FastRows
 
 DECODINGS = ("speculative", "flat", "reference")
 
@@ -37,7 +37,7 @@ def make_rows(model: WorldModel, decoding: str | None = None, use_cache: bool = 
         raise ValueError(f"decoding must be one of {', '.join(DECODINGS)}, got {decoding!r}")
     if decoding == "reference" or not use_cache or not supports(model):
         return Rows(model, use_cache, first_blocks)
-    return FastRows(model, first_blocks, lookahead=FED - 2 if decoding == "speculative" else 0)
+    return FastRows(model, first_blocks, lookahead=-1 if decoding == "speculative" else 0)
 
 
 __all__ = ["DECODINGS", "default_decoding", "make_rows"]

@@ -21,6 +21,9 @@ overwritten by its next call.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from typing import TypeVar
+
 import torch
 import torch.nn.functional as F
 from torch import nn
@@ -29,6 +32,7 @@ from ..messenger.constants import NUM_IDS
 from .base import MAX_LEN, WorldModel
 from .tokens import BLOCK, ID_SLOTS
 
+T = TypeVar("T")
 CAPACITY = MAX_LEN + BLOCK  # a row's last call may write up to a block of padding past MAX_LEN
 
 
@@ -97,16 +101,17 @@ class _Step(nn.Module):
     def forward(
         self,
         tokens: torch.Tensor,
-        positions: torch.Tensor,
         rows: torch.Tensor,
-        width: int,
+        lengths: torch.Tensor,
         id_table: torch.Tensor | None,
         k_cache: torch.Tensor,
         v_cache: torch.Tensor,
     ) -> torch.Tensor:
-        """Final hidden states [A, n, H] of tokens [A, n] at positions [A, n] of cache rows `rows`
-        [A]; writes their keys and values at those positions. `width`: the largest position + 1."""
+        """Final hidden states [A, n, H] of tokens [A, n] of cache rows `rows` [A], placed at each
+        row's length (`lengths`: every row's); writes their keys and values there."""
         a, n = tokens.shape
+        positions = lengths.index_select(0, rows)[:, None] + torch.arange(n)[None, :]
+        width = int(positions[:, -1].max()) + 1
         h, kvh, d = self.hidden, self.kv_heads, self.head_dim
         group = self.heads // kvh
         slot = positions % self.block
@@ -168,14 +173,8 @@ class FlatDecoder:
 
     @staticmethod
     def for_model(model: WorldModel) -> FlatDecoder:
-        """The model's flat decoder, built once per version of its weights (an optimizer step or a
-        load changes a parameter's version, so the copy here never goes stale)."""
-        version = tuple((id(p), p._version) for p in model.parameters())
-        cached = getattr(model, "_flat_decoder", None)
-        if cached is None or cached[0] != version:
-            cached = (version, FlatDecoder(model))
-            object.__setattr__(model, "_flat_decoder", cached)  # not a submodule: no state_dict entry
-        return cached[1]
+        """The model's flat decoder, built once per version of its weights."""
+        return per_weights(model, "flat_decoder", FlatDecoder)
 
     def new_cache(self, batch: int) -> RowCache:
         shape = (self.layers, batch, self.kv_heads, CAPACITY, self.head_dim)
@@ -188,10 +187,17 @@ class FlatDecoder:
         """Hidden states [A, n, H] of n new tokens [A, n] for cache rows `rows` (default: all), placed
         at each row's length; the lengths are not advanced (the caller accepts what it keeps)."""
         rows = torch.arange(len(cache)) if rows is None else rows
-        n = tokens.shape[1]
-        positions = cache.lengths[rows][:, None] + torch.arange(n)
-        width = int(positions[:, -1].max()) + 1
-        return self._step(tokens, positions, rows, width, id_table, cache.k, cache.v)
+        return self._step(tokens, rows, cache.lengths, id_table, cache.k, cache.v)
+
+
+def per_weights(model: WorldModel, name: str, build: Callable[[WorldModel], T]) -> T:
+    """`build(model)`, kept on the model until its weights change (an optimizer step or a load
+    changes a parameter's version, so what is kept never goes stale)."""
+    version = tuple((id(p), p._version) for p in model.parameters())
+    kept = model.__dict__.setdefault("_per_weights", {})  # not a submodule: no state_dict entry
+    if name not in kept or kept[name][0] != version:
+        kept[name] = (version, build(model))
+    return kept[name][1]
 
 
 def supports(model: WorldModel) -> bool:
@@ -199,4 +205,4 @@ def supports(model: WorldModel) -> bool:
     return not model.decoder_config.cross_attention
 
 
-__all__ = ["CAPACITY", "FlatDecoder", "RowCache", "supports"]
+__all__ = ["CAPACITY", "FlatDecoder", "RowCache", "per_weights", "supports"]

@@ -28,13 +28,15 @@ uniform number falls within that distance of a boundary of the cumulative distri
 from __future__ import annotations
 
 import torch
+import torch.nn.functional as F
+from torch import nn
 
 from ..messenger.constants import ACTION_DELTAS, GRID, NUM_ACTIONS
 from .base import WorldModel
 from .constraints import StepRules
-from .flat_decoder import FlatDecoder, RowCache
+from .flat_decoder import FlatDecoder, RowCache, _Step, per_weights
 from .imagine import Rows
-from .tokens import BLOCK, COL_OFFSET, FIRST_REWARD_LABEL, OBS_TOKENS, ROW_OFFSET
+from .tokens import BLOCK, COL_OFFSET, FIRST_REWARD_LABEL, OBS_TOKENS, OBS_VOCAB, ROW_OFFSET
 
 STEP_TOKENS = OBS_TOKENS + 2  # tokens sampled per step: 12 observation tokens, reward, done
 FED = BLOCK  # stream entries fed per step: the pending done, the action, and tokens 0..12
@@ -42,9 +44,12 @@ _DELTAS = torch.tensor(ACTION_DELTAS + ((0, 0),), dtype=torch.long)  # the dummy
 _AVATAR = 3 * 3  # the avatar channel's first token (id, row, column) in an observation
 
 
-def draft_block(last_obs: torch.Tensor, actions: torch.Tensor) -> torch.Tensor:
+def draft_block(
+    last_obs: torch.Tensor, actions: torch.Tensor, last_done: torch.Tensor, last_reward: torch.Tensor
+) -> torch.Tensor:
     """A guess of each row's next block [rows, 14]: the last observation tokens [rows, 12] with the
-    avatar moved by its action [rows] (a move off the board undone), reward 0, not done. A better
+    avatar moved by its action [rows] (a move off the board undone); no reward and not done, or,
+    after a done (a trajectory imagined past its end), the last reward and done again. A better
     guess only saves calls; a wrong one costs nothing in exactness."""
     block = torch.empty(len(last_obs), STEP_TOKENS, dtype=torch.long)
     block[:, :OBS_TOKENS] = last_obs
@@ -54,20 +59,23 @@ def draft_block(last_obs: torch.Tensor, actions: torch.Tensor) -> torch.Tensor:
     col = (last_obs[:, _AVATAR + 2] - COL_OFFSET + delta[:, 1]).clamp(0, GRID - 1) + COL_OFFSET
     block[:, _AVATAR + 1] = torch.where(here, row, last_obs[:, _AVATAR + 1])
     block[:, _AVATAR + 2] = torch.where(here, col, last_obs[:, _AVATAR + 2])
-    block[:, OBS_TOKENS] = FIRST_REWARD_LABEL  # the label of reward 0
-    block[:, OBS_TOKENS + 1] = 0
+    ended = last_done == 1
+    block[:, OBS_TOKENS] = torch.where(ended, last_reward, FIRST_REWARD_LABEL)  # label 2: reward 0
+    block[:, OBS_TOKENS + 1] = last_done
     return block
 
 
 class FastRows(Rows):
-    """`Rows` on the flat decoder, drafting `lookahead` tokens per call (13: the whole block,
-    speculative; 0: one token per call as the reference path, on the flat decoder only)."""
+    """`Rows` on the flat decoder, drafting `lookahead` tokens per call (-1: by the rows in the
+    call, `_lookahead`; 0: one token per call as the reference path, on the flat decoder only)."""
 
-    def __init__(self, model: WorldModel, first_blocks: int = 0, lookahead: int = FED - 2) -> None:
+    def __init__(self, model: WorldModel, first_blocks: int = 0, lookahead: int = -1) -> None:
         super().__init__(model, use_cache=True, first_blocks=first_blocks)
         self.decoder = FlatDecoder.for_model(model)
+        self.speculator = per_weights(model, "speculator", _Speculator.scripted)
         self.cache: RowCache = self.decoder.new_cache(0)
         self.lookahead = lookahead
+        self.last_reward = torch.zeros(0, dtype=torch.long)  # each row's last reward label (for drafts)
         self.calls = 0  # decoder calls made by steps (for benchmarks)
 
     def _first_block(self, tokens: torch.Tensor, cond) -> RowCache:
@@ -101,87 +109,234 @@ class FastRows(Rows):
         uniforms = self.uniforms[everyone, self.t]  # [rows, 14]
         self.t = self.t + 1
         rules = StepRules(self.last_obs, actions, self.t >= self.limit) if bool(self.constrained.any()) else None
-        block = draft_block(self.last_obs, actions)  # sampled tokens where known, the draft after
+        # The block: sampled tokens where known, the draft after.
+        block = draft_block(self.last_obs, actions, self.pending, self.last_reward)
         probs = torch.zeros(b, STEP_TOKENS)
         # The step's stream: pending done, action, tokens 0..12; fed[i] of it are in row i's cache.
         stream = torch.cat([self.pending[:, None], actions[:, None], block[:, : FED - 2]], 1)
         fed = torch.zeros(b, dtype=torch.long)
         known = torch.zeros(b, dtype=torch.long)  # tokens of the block sampled so far
-        rows = everyone
-        while len(rows):
-            c = fed[rows]
-            # Row i feeds the stream from c: one token (two at the start) plus the draft ahead.
-            count = torch.minimum(FED - c, torch.where(c == 0, 2, 1) + self.lookahead)
-            n = int(count.max())
-            ahead = torch.arange(n)
-            at = (c[:, None] + ahead).clamp_(max=FED - 1)
-            tokens = stream[rows[:, None], at].masked_fill_(ahead >= count[:, None], 0)  # padding: 0
-            table = None if self.cond.id_table is None else self.cond.id_table[rows]
-            h = self.decoder(tokens, self.cache, table, None if len(rows) == b else rows)
-            self.calls += 1
-            # Token m is predicted by the hidden state of stream entry m + 1.
-            first = int(known[rows].min())
-            m = torch.arange(first, STEP_TOKENS)
-            q = (m[None, :] + 1 - c[:, None]).clamp(0, n - 1)
-            grid = h.gather(1, q[:, :, None].expand(-1, -1, h.shape[-1]))  # [A, 14 - first, H]
-            tok, p = self._sample_all(grid, first, rows, uniforms[rows], block, rules)
-            # Each row's first token that differs from the draft (or its last predicted one) ends
-            # what this call decided for it.
-            last = c + count - 2
-            stop = (m[None, :] >= known[rows, None]) & ((tok != block[rows, first:]) | (m[None, :] >= last[:, None]))
-            end = first + stop.int().argmax(1)  # the first True
-            take = (m[None, :] >= known[rows, None]) & (m[None, :] <= end[:, None])
-            block[rows, first:] = torch.where(take, tok, block[rows, first:])
-            probs[rows, first:] = torch.where(take, p, probs[rows, first:])
-            stream[rows, 2:] = block[rows, : FED - 2]
-            now = torch.clamp(end + 2, max=FED)  # entries valid: up to the one holding token `end`
-            self.cache.lengths[rows] += now - c
-            fed[rows] = now
-            known[rows] = end + 1
-            rows = rows[end + 1 < STEP_TOKENS]
+        state = (stream, fed, known, block, probs, self.cache.lengths, uniforms, self.temperature)
+        conditioning = (self.cond.id_table, self.cache.k, self.cache.v)
+        if rules is None:  # the whole step in one scripted call
+            self.calls += self.speculator.run(*state, *conditioning, self.lookahead)
+        else:  # the rules are Python: what they allow is computed before each call
+            rows = everyone
+            while len(rows):
+                allowed = self._allowed(rules, block, rows)
+                rows = self.speculator(*state, rows, *conditioning, self._lookahead(len(rows)), allowed)
+                self.calls += 1
         self.pending = block[:, -1]
+        self.last_reward = block[:, OBS_TOKENS].clone()
         self.last_obs = block[:, :OBS_TOKENS].clone()
         return block.numpy(), probs.numpy()
 
-    def _sample_all(
+    def admit(self, cond, first, max_steps, temperature, gen, constrained=False) -> None:
+        super().admit(cond, first, max_steps, temperature, gen, constrained)
+        grown = len(self) - len(self.last_reward)
+        self.last_reward = torch.cat([self.last_reward, torch.full((grown,), FIRST_REWARD_LABEL)])
+
+    def keep(self, idx: torch.Tensor) -> None:
+        super().keep(idx)
+        self.last_reward = self.last_reward[idx]
+
+    def _lookahead(self, rows: int) -> int:
+        return _lookahead(rows) if self.lookahead < 0 else self.lookahead
+
+    def _allowed(self, rules: StepRules, block: torch.Tensor, rows: torch.Tensor) -> torch.Tensor:
+        """What the rules allow at each of the 14 slots of rows `rows` [A, 14, 37] (reward and done
+        in their first columns), given that the tokens before each slot are `block`'s; unconstrained
+        rows allow everything."""
+        out = torch.zeros(len(rows), STEP_TOKENS, OBS_VOCAB, dtype=torch.bool)
+        sampled = [block[:, i] for i in range(STEP_TOKENS)]
+        for k in range(STEP_TOKENS):
+            mask = rules.allowed(k, sampled[:k])[rows]
+            out[:, k, : mask.shape[1]] = mask
+        out |= ~self.constrained[rows][:, None, None]
+        return out
+
+
+def _lookahead(rows: int) -> int:
+    """Draft tokens a call feeds per row when `rows` rows take part. A call over one row costs
+    about the same for 1 token or 15 (dispatch, not arithmetic), so a lone row feeds its whole
+    draft; over many rows every padded or rejected token is arithmetic, so they feed less
+    (benchmarks/imagination.py measured 1, 16 and 64 rows)."""
+    if rows <= 4:
+        return 13  # the whole draft (FED - 2; TorchScript reads no module constants)
+    return 5 if rows <= 32 else 3
+
+
+class _Speculator(nn.Module):
+    """A decoder call with what comes before and after it (`_feed`, `_decide`), and a whole step
+    of such calls (`run`), as one scripted graph: the per-call bookkeeping is ~60 small ops, which
+    cost more than the decoder call itself when dispatched from Python."""
+
+    def __init__(self, model: WorldModel) -> None:
+        super().__init__()
+        self.decoder = _Step(model)
+        heads: list[torch.Tensor] = []
+        for head_ in (model.obs_head, model.reward_head, model.done_head):
+            heads += [head_[0].weight, head_[0].bias, head_[2].weight, head_[2].bias]
+        self.heads = [w.detach().clone() for w in heads]
+
+    @staticmethod
+    def scripted(model: WorldModel) -> torch.jit.ScriptModule:
+        with torch.no_grad():
+            return torch.jit.script(_Speculator(model).eval())
+
+    def forward(
         self,
-        grid: torch.Tensor,
-        first: int,
-        rows: torch.Tensor,
-        uniforms: torch.Tensor,
+        stream: torch.Tensor,
+        fed: torch.Tensor,
+        known: torch.Tensor,
         block: torch.Tensor,
-        rules: StepRules | None,
-    ) -> tuple[torch.Tensor, torch.Tensor]:
-        """Tokens first..13 of rows `rows` sampled from the hidden states [A, 14 - first, H] that
-        predict them, as `Rows._sample` samples each (inverse CDF with the row's uniform number,
-        restricted to the allowed tokens if constrained), each as if the tokens before it are
-        `block`'s; with the model's unrestricted probability of each."""
-        temperature = self.temperature[rows][:, None]
-        parts = []
-        obs = max(0, OBS_TOKENS - first)
-        if obs:
-            parts.append((self.model.obs_head, grid[:, :obs], first))
-        for k, head_ in ((OBS_TOKENS, self.model.reward_head), (OBS_TOKENS + 1, self.model.done_head)):
-            if k >= first:
-                parts.append((head_, grid[:, k - first : k - first + 1], k))
-        tokens, probs = [], []
-        for head_, hs, k0 in parts:
-            logits = head_(hs).float() / temperature[:, :, None]  # [A, slots, vocab]
-            p_all = torch.softmax(logits, dim=-1)
-            draw = p_all
-            allowed = None
-            if rules is not None:
-                allowed = torch.stack(
-                    [rules.allowed(k, [block[:, i] for i in range(k)])[rows] for k in range(k0, k0 + hs.shape[1])], 1
-                ) | ~self.constrained[rows][:, None, None]
-                draw = torch.softmax(logits.masked_fill(~allowed, -torch.inf), dim=-1)
-            u = uniforms[:, k0 : k0 + hs.shape[1]]
-            token = (draw.cumsum(-1) < u[:, :, None]).sum(-1).clamp_(max=draw.shape[-1] - 1)
-            if allowed is not None:
-                token = _allowed_at_or_before(allowed, token)
-            tokens.append(token)
-            probs.append(p_all.gather(2, token[:, :, None]).squeeze(2))
-        return torch.cat(tokens, 1), torch.cat(probs, 1)
+        probs: torch.Tensor,
+        lengths: torch.Tensor,
+        uniforms: torch.Tensor,
+        temperature: torch.Tensor,
+        rows: torch.Tensor,
+        id_table: torch.Tensor | None,
+        k_cache: torch.Tensor,
+        v_cache: torch.Tensor,
+        lookahead: int,
+        allowed: torch.Tensor | None,
+    ) -> torch.Tensor:
+        """One call for rows `rows`; updates the step's state in place and returns the rows still
+        sampling."""
+        tokens, count = _feed(stream, fed, rows, lookahead)
+        table = None if id_table is None else id_table.index_select(0, rows)
+        h = self.decoder(tokens, rows, lengths, table, k_cache, v_cache)
+        return _decide(
+            h, rows, count, fed, known, block, probs, stream, lengths, uniforms, temperature, self.heads, allowed
+        )
+
+    @torch.jit.export
+    def run(
+        self,
+        stream: torch.Tensor,
+        fed: torch.Tensor,
+        known: torch.Tensor,
+        block: torch.Tensor,
+        probs: torch.Tensor,
+        lengths: torch.Tensor,
+        uniforms: torch.Tensor,
+        temperature: torch.Tensor,
+        id_table: torch.Tensor | None,
+        k_cache: torch.Tensor,
+        v_cache: torch.Tensor,
+        lookahead: int,
+    ) -> int:
+        """A whole unconstrained step: calls until every row has sampled its block; returns how
+        many calls it took. `lookahead` < 0: by the rows in each call (`_lookahead`)."""
+        rows = torch.arange(stream.shape[0])
+        calls = 0
+        while rows.shape[0] > 0:
+            ahead = _lookahead(rows.shape[0]) if lookahead < 0 else lookahead
+            rows = self.forward(
+                stream, fed, known, block, probs, lengths, uniforms, temperature, rows, id_table, k_cache,
+                v_cache, ahead, None,
+            )
+            calls += 1
+        return calls
+
+
+def _feed(
+    stream: torch.Tensor, fed: torch.Tensor, rows: torch.Tensor, lookahead: int
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """The tokens [A, n] rows `rows` feed next: each row's stream from what it has fed, one token
+    (two at a step's start) plus up to `lookahead` of the draft, right-padded with 0 (a token of
+    every vocabulary); and how many of them are real [A]."""
+    c = fed.index_select(0, rows)
+    count = torch.minimum(15 - c, torch.where(c == 0, 2, 1) + lookahead)
+    n = int(count.max())
+    ahead = torch.arange(n)
+    at = (c[:, None] + ahead[None, :]).clamp(max=14)
+    tokens = stream.index_select(0, rows).gather(1, at).masked_fill(ahead[None, :] >= count[:, None], 0)
+    return tokens, count
+
+
+def _sample_slots(
+    hs: torch.Tensor,
+    w1: torch.Tensor,
+    b1: torch.Tensor,
+    w2: torch.Tensor,
+    b2: torch.Tensor,
+    temperature: torch.Tensor,
+    u: torch.Tensor,
+    allowed: torch.Tensor | None,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Tokens [A, k] from the hidden states [A, k, H] that predict them, as `Rows._sample` draws
+    each: the first token whose cumulative probability reaches the row's uniform number (under the
+    allowed ones if constrained), and the model's unrestricted probability of it."""
+    logits = F.linear(torch.relu(F.linear(hs, w1, b1)), w2, b2).float() / temperature[:, None, None]
+    p_all = torch.softmax(logits, dim=-1)
+    draw = p_all
+    if allowed is not None:
+        draw = torch.softmax(logits.masked_fill(~allowed, float("-inf")), dim=-1)
+    token = (draw.cumsum(-1) < u[:, :, None]).sum(-1).clamp_(max=draw.shape[-1] - 1)
+    if allowed is not None:
+        token = _allowed_at_or_before(allowed, token)
+    return token, p_all.gather(2, token[:, :, None]).squeeze(2)
+
+
+def _decide(
+    h: torch.Tensor,
+    rows: torch.Tensor,
+    count: torch.Tensor,
+    fed: torch.Tensor,
+    known: torch.Tensor,
+    block: torch.Tensor,
+    probs: torch.Tensor,
+    stream: torch.Tensor,
+    lengths: torch.Tensor,
+    uniforms: torch.Tensor,
+    temperature: torch.Tensor,
+    heads: list[torch.Tensor],
+    allowed: torch.Tensor | None,
+) -> torch.Tensor:
+    """After a call of rows `rows` (hidden states h [A, n, H] of the `count` tokens each fed):
+    sample their tokens in order while they agree with the draft, write what is decided into the
+    step's state (block, probs, stream, fed, known, the cache lengths), and return the rows still
+    sampling."""
+    c = fed.index_select(0, rows)
+    k = known.index_select(0, rows)
+    hidden = h.shape[2]
+    # Token m is predicted by the hidden state of stream entry m + 1, fed at index m + 1 - c.
+    first = int(k.min())
+    last = c + count - 2  # the last token each row's call predicts
+    top = int(last.max())
+    m = torch.arange(first, top + 1)
+    q = (m[None, :] + 1 - c[:, None]).clamp(0, h.shape[1] - 1)
+    grid = h.gather(1, q[:, :, None].expand(-1, -1, hidden))
+    u = uniforms.index_select(0, rows)
+    temp = temperature.index_select(0, rows)
+    toks: list[torch.Tensor] = []
+    ps: list[torch.Tensor] = []
+    # Slots 0..11 use the observation head, 12 the reward head, 13 the done head.
+    for i, (lo, hi, vocab) in enumerate([(0, 12, 37), (12, 13, 5), (13, 14, 2)]):
+        lo, hi = max(lo, first), min(hi, top + 1)
+        if lo < hi:
+            mask = None if allowed is None else allowed[:, lo:hi, :vocab]
+            w1, b1, w2, b2 = heads[4 * i], heads[4 * i + 1], heads[4 * i + 2], heads[4 * i + 3]
+            t, p = _sample_slots(grid[:, lo - first : hi - first], w1, b1, w2, b2, temp, u[:, lo:hi], mask)
+            toks.append(t)
+            ps.append(p)
+    tok, p = torch.cat(toks, 1), torch.cat(ps, 1)
+    # Each row's first token that differs from the draft (or its last predicted one) ends what
+    # this call decided for it.
+    mine = block.index_select(0, rows)[:, first : top + 1]
+    pending = m[None, :] >= k[:, None]
+    stop = pending & ((tok != mine) | (m[None, :] >= last[:, None]))
+    end = first + stop.int().argmax(1)  # argmax returns the first True
+    take = pending & (m[None, :] <= end[:, None])
+    block[rows, first : top + 1] = torch.where(take, tok, mine)
+    probs[rows, first : top + 1] = torch.where(take, p, probs.index_select(0, rows)[:, first : top + 1])
+    stream[rows, 2:] = block.index_select(0, rows)[:, :13]
+    now = torch.clamp(end + 2, max=15)  # stream entries valid: up to the one holding token `end`
+    lengths.index_add_(0, rows, now - c)
+    fed.index_copy_(0, rows, now)
+    known.index_copy_(0, rows, end + 1)
+    return rows[end + 1 < 14]
 
 
 def _allowed_at_or_before(allowed: torch.Tensor, token: torch.Tensor) -> torch.Tensor:
