@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..messenger.constants import AVATAR_WITH_MESSAGE, IDENTITIES
-from ..messenger.policies import behaviour_actions, policy_index
+from ..messenger.policies import behaviour_actions, greedy_choices, policy_index
 from ..messenger.rng import seed_keys
 from ..messenger.spec import GameSpec
 
@@ -38,6 +38,16 @@ def expert_actions(
     avatar, entities, present, carrying = role_view(np.asarray(obs), ids)
     keys = seed_keys(np.broadcast_to(np.asarray(seeds), (n,)))
     return behaviour_actions(np.full(n, policy_index(policy)), avatar, entities, present, carrying, keys, t)
+
+
+def expert_choices(obs: np.ndarray, ids: np.ndarray) -> np.ndarray:
+    """[n, 5]: the actions among which go_to_goal chooses (uniformly) in each observation [n, 4, 3]:
+    the greedy steps toward the message while it is on the board and not carried, else toward the
+    goal. What it would do, without the draw that breaks its ties."""
+    avatar, entities, present, carrying = role_view(np.asarray(obs), ids)
+    seek_message = ~carrying & present[:, 1]
+    target = np.where(seek_message[:, None], entities[:, 1], entities[:, 2])
+    return greedy_choices(avatar, target)
 
 
 def expert_policy(game: GameSpec, seed: int = 0, policy: str = "go_to_goal"):

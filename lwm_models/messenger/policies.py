@@ -37,13 +37,18 @@ def _uniform_among(mask: np.ndarray, u: np.ndarray) -> np.ndarray:
     return (np.cumsum(mask, axis=-1) > pick[:, None]).argmax(-1)
 
 
-def greedy_step(avatar: np.ndarray, target: np.ndarray, u: np.ndarray) -> np.ndarray:
-    """Among on-board actions, one that reaches the smallest distance to `target`, ties uniform
-    (the same distribution as trying the 5 actions in random order and taking the first best)."""
+def greedy_choices(avatar: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """[N, 5]: the on-board actions that reach the smallest distance to `target`."""
     nxt, valid = _next_cells(avatar)
     dist = np.abs(nxt - target[:, None, :]).sum(-1)
     dist = np.where(valid, dist, np.iinfo(np.int64).max)
-    return _uniform_among(dist == dist.min(-1, keepdims=True), u)
+    return dist == dist.min(-1, keepdims=True)
+
+
+def greedy_step(avatar: np.ndarray, target: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """Among on-board actions, one that reaches the smallest distance to `target`, ties uniform
+    (the same distribution as trying the 5 actions in random order and taking the first best)."""
+    return _uniform_among(greedy_choices(avatar, target), u)
 
 
 def behaviour_actions(

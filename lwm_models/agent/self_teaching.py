@@ -1,0 +1,199 @@
+"""Learning from the manual alone, and asking a person only what the world model left open.
+
+Table 3's online imitation needs a reviewer who labels every imagined state (about 8,000 labels a
+game). Here the agent labels its imagined states itself: the world model, which has read the
+manual, is asked what touching each entity does (lwm_models/agent/roles.py), and the expert of
+the paper's simulated human (go to the message, then the goal) labels each
+state under those roles, weighted by how sure the world model is of them. The rest is online
+imitation as in Table 3: the policy acts in imagination, its states are labelled, it learns from
+every state labelled so far (DAgger).
+
+A person is asked only where it matters: the states on which the role assignments still in play
+would act differently (query by committee, the committee being the six assignments weighted by
+the belief). Each answer moves the belief, and every self-made label is made again under the new
+belief, so a few answers correct all the labels a wrong belief made. With a world model that read
+the manual clearly the belief is sure and nothing is asked.
+
+A world model that misreads the manual can be confidently wrong: its belief is trusted only so far
+(roles.TRUST), so that it still asks, and a person's first few answers are what shows it.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+from ..world.base import ManualBatch
+from .learning import fit_labels, imagined_states
+from .policy import EmmaPolicy, act, stack_history
+from .roles import RoleBelief, believe
+
+Ask = Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
+"""ask(histories [k, 3, 4, 3], observations [k, 4, 3], steps [k] (0 = the start)) -> the reviewer's
+actions [k], or -1 where they gave none."""
+
+
+@dataclass
+class Teaching:
+    """What self-teaching in one game may spend, and how much it may ask of a person."""
+
+    rounds: int = field(default=10, metadata={"help": "rounds of imagination with the current policy"})
+    episodes: int = field(default=32, metadata={"help": "imagined episodes per round"})
+    grad_steps: int = field(default=20, metadata={"help": "minibatch steps after each round"})
+    batch: int = field(default=256, metadata={"help": "labelled states per minibatch step"})
+    lr: float = field(default=1e-3, metadata={"help": "Adam learning rate of the policy"})
+    contact_samples: int = field(
+        default=8, metadata={"help": "imagined trajectories per ordering of two entities, to read the roles"}
+    )
+    label_budget: int = field(default=0, metadata={"help": "labels a person may be asked for in all (0: none)"})
+    per_round: int = field(
+        default=5, metadata={"help": "labels asked at most in one round (the belief moves between rounds)"}
+    )
+    ask_above: float = field(
+        default=0.05, metadata={"help": "ask about a state only when this share of the belief disagrees"}
+    )
+    constrained: bool = field(default=False, metadata={"help": "imagine under the game's rules"})
+
+
+@dataclass
+class TeachingResult:
+    belief: RoleBelief
+    asked: int = 0  # labels the person was asked for
+    answered: int = 0  # labels they gave
+    rounds: int = 0
+    self_labelled: int = 0  # states the agent labelled itself
+    seconds: dict[str, float] = field(default_factory=dict)
+
+    def summary(self) -> dict:
+        assignment, p = self.belief.best()
+        return {
+            "roles": self.belief.describe(),
+            "assignment": list(assignment),
+            "p": round(p, 4),
+            "asked": self.asked,
+            "answered": self.answered,
+            "rounds": self.rounds,
+            "self_labelled": self.self_labelled,
+            "seconds": {k: round(v, 2) for k, v in self.seconds.items()},
+        }
+
+
+def disagreement(votes: np.ndarray) -> np.ndarray:
+    """[n]: the share of the committee's weight against its favourite action, per state."""
+    return 1.0 - votes.max(1) / np.maximum(votes.sum(1), 1e-12)
+
+
+def choose_questions(belief: RoleBelief, obs: np.ndarray, k: int, above: float) -> np.ndarray:
+    """Indices of at most k states worth asking about: those on which the belief's assignments
+    disagree most, above `above`; distinct observations only (the same board asked twice is a
+    waste of the person's time)."""
+    if k <= 0 or not len(obs):
+        return np.zeros(0, dtype=np.int64)
+    score = disagreement(belief.votes(obs))
+    chosen, seen = [], set()
+    for i in np.argsort(-score, kind="stable"):
+        if score[i] < above or len(chosen) == k:
+            break
+        key = obs[i].tobytes()
+        if key not in seen:
+            seen.add(key)
+            chosen.append(int(i))
+    return np.asarray(chosen, dtype=np.int64)
+
+
+def teach(
+    policy: EmmaPolicy,
+    imaginer,
+    policy_manual: ManualBatch | Callable[[], ManualBatch],
+    starts: np.ndarray,
+    config: Teaching,
+    ask: Ask | None = None,
+    seed: int = 0,
+    belief: RoleBelief | None = None,
+    should_stop: Callable[[], bool] = lambda: False,
+    on_round: Callable[[int, TeachingResult], None] | None = None,
+) -> TeachingResult:
+    """Teach `policy` in imagination from the world model's reading of the manual, asking `ask`
+    (a person, or the scripted reviewer) for at most `config.label_budget` labels.
+
+    starts: the game's first boards [k, 4, 3]; `belief`: a belief to start from (else the world
+    model's, read through `imaginer` now)."""
+    starts = np.asarray(starts, dtype=np.uint8).reshape(-1, 4, 3)
+    seconds: dict[str, float] = {}
+
+    def spend(what: str, since: float) -> float:
+        now = time.perf_counter()
+        seconds[what] = seconds.get(what, 0.0) + now - since
+        return now
+
+    began = time.perf_counter()
+    if belief is None:
+        belief = believe(imaginer, starts, config.contact_samples, seed)
+    began = spend("roles", began)
+    result = TeachingResult(belief, seconds=seconds)
+    rng = np.random.default_rng(seed)
+    gen = torch.Generator().manual_seed(seed)
+    opt = torch.optim.Adam(policy.parameters(), lr=config.lr)
+    own_hist, own_obs, own_steps = [], [], []  # states the agent labels itself (again, each round)
+    their_hist, their_labels = [], []  # states the person labelled
+    for u in range(config.rounds):
+        if should_stop():
+            break
+        manual = policy_manual() if callable(policy_manual) else policy_manual
+        with torch.no_grad():
+            id_values = policy.id_values(manual).expand(config.episodes, -1, -1)
+
+        def learner(obs: np.ndarray, idx: np.ndarray, t: int, id_values=id_values) -> np.ndarray:
+            return act(policy, stack_history(obs), id_values[: len(idx)], sample=True, generator=gen)
+
+        began = time.perf_counter()
+        im = imaginer.rollout(
+            starts[rng.integers(len(starts), size=config.episodes)],
+            learner,
+            n=config.episodes,
+            max_steps=32,
+            seed=seed * 10_000 + u,
+            constrained=config.constrained,
+        )
+        hist, obs, steps, _ = imagined_states(im, 32)
+        began = spend("imagine", began)
+
+        keep = np.ones(len(obs), dtype=bool)
+        room = min(config.per_round, config.label_budget - result.asked)
+        if ask is not None and room > 0:
+            chosen = choose_questions(belief, obs, room, config.ask_above)
+            if len(chosen):
+                answers = np.asarray(ask(hist[chosen], obs[chosen], steps[chosen]), dtype=np.int64)
+                result.asked += len(chosen)
+                given = answers >= 0
+                result.answered += int(given.sum())
+                if given.any():
+                    at = chosen[given]
+                    belief.update(obs[at], answers[given])
+                    their_hist.append(hist[at])
+                    their_labels.append(answers[given])
+                    keep[at] = False
+            began = spend("ask", began)
+        own_hist.append(hist[keep])
+        own_obs.append(obs[keep])
+        own_steps.append(steps[keep])
+
+        # Every self-made label is made again under the belief as it is now.
+        labels = belief.labels(np.concatenate(own_obs), np.concatenate(own_steps) + 1, seed)
+        h = np.concatenate(own_hist + their_hist)
+        y = np.concatenate([labels, *their_labels]).astype(np.int64)
+        began = spend("label", began)
+        fit_labels(policy, manual, h, y, config.grad_steps, config.lr, config.batch, seed * 10_000 + u, opt)
+        spend("fit", began)
+        result.rounds = u + 1
+        result.self_labelled = len(labels)
+        if on_round is not None:
+            on_round(u + 1, result)
+    return result
+
+
+__all__ = ["Ask", "Teaching", "TeachingResult", "choose_questions", "disagreement", "teach"]
