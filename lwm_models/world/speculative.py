@@ -34,7 +34,7 @@ from torch import nn
 from ..messenger.constants import ACTION_DELTAS, GRID, NUM_ACTIONS
 from .base import WorldModel
 from .constraints import StepRules
-from .flat_decoder import FlatDecoder, RowCache, _Step, per_weights
+from .flat_decoder import FlatDecoder, RowCache, _Step, per_weights, scripted
 from .imagine import Rows
 from .tokens import BLOCK, COL_OFFSET, FIRST_REWARD_LABEL, OBS_TOKENS, OBS_VOCAB, ROW_OFFSET
 
@@ -182,7 +182,7 @@ class _Speculator(nn.Module):
     @staticmethod
     def scripted(model: WorldModel) -> torch.jit.ScriptModule:
         with torch.no_grad():
-            return torch.jit.script(_Speculator(model).eval())
+            return scripted(_Speculator(model).eval())
 
     def forward(
         self,

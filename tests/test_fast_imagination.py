@@ -1,0 +1,163 @@
+"""The fast decoding paths of imagination (world/decoding.py) against the reference path: same seed,
+same starts, same tokens, with the shipped EMMA-LWM and Observational checkpoints.
+
+The flat path runs the reference's ops in the same order and must match it bit for bit. The
+speculative path computes a token's distribution in calls over several tokens, so its
+probabilities may differ by rounding; the bound documented in world/speculative.py and
+docs/speed.md is checked here (PROB_BOUND), and the sampled tokens must be identical.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+from game_fixtures import MANUAL, OBS
+
+from lwm_models.data.splits import load_split
+from lwm_models.messenger.engine import BatchedMessenger
+from lwm_models.world import speculative
+from lwm_models.world.checkpoint import load_checkpoint
+from lwm_models.world.continuous import ContinuousBatch, Track
+from lwm_models.world.decoding import default_decoding, make_rows
+from lwm_models.world.flat_decoder import FlatDecoder
+from lwm_models.world.imagine import Rows, condition_rows, imagine
+from lwm_models.world.registry import PRESETS, build_model
+from lwm_models.world.shipped import shipped_checkpoint
+from lwm_models.world.speculative import FastRows
+
+PROB_BOUND = 1e-5  # the largest difference of a token's probability, speculative vs reference
+STEPS = 12
+
+
+@pytest.fixture(scope="module", params=["emma", "observational"])
+def shipped(request):
+    """(model, manual batch) of a shipped checkpoint, on MANUAL."""
+    model, _ = load_checkpoint(shipped_checkpoint(request.param))
+    return model, model.read_manual(MANUAL, model.frozen_text_encoder())
+
+
+@pytest.fixture(scope="module")
+def starts() -> np.ndarray:
+    """Six fixed start observations: the fixtures' one and the first of five newall-test games."""
+    games = load_split("newall-test")[:5]
+    engine = BatchedMessenger()
+    engine.reset(games, list(range(len(games))))
+    return np.concatenate([np.array(OBS, dtype=np.uint8)[None], engine.compact_observation()])
+
+
+def run(model, manual, first, decoding: str, constrained: bool = False, seed: int = 0, stop_on_done: bool = True):
+    n = len(first)
+    actions = np.random.default_rng(seed).integers(5, size=(n, STEPS))
+    return imagine(
+        model, manual, first, n=n, actions=actions, max_steps=STEPS, seed=seed, stop_on_done=stop_on_done,
+        constrained=constrained, decoding=decoding,
+    )
+
+
+def assert_same_tokens(a, b) -> None:
+    np.testing.assert_array_equal(a.lengths, b.lengths)
+    np.testing.assert_array_equal(a.observations, b.observations)
+    np.testing.assert_array_equal(a.actions, b.actions)
+    np.testing.assert_array_equal(a.rewards, b.rewards)
+    np.testing.assert_array_equal(a.dones, b.dones)
+
+
+@pytest.mark.parametrize("constrained", [False, True], ids=["raw", "constrained"])
+@pytest.mark.parametrize("size", [1, 6])
+def test_fast_paths_sample_the_reference_tokens(shipped, starts, size, constrained):
+    model, manual = shipped
+    first = starts[:size]
+    reference = run(model, manual, first, "reference", constrained)
+    flat = run(model, manual, first, "flat", constrained)
+    fast = run(model, manual, first, "speculative", constrained)
+    assert_same_tokens(flat, reference)
+    np.testing.assert_array_equal(flat.token_probs, reference.token_probs)  # bit for bit
+    assert_same_tokens(fast, reference)
+    np.testing.assert_allclose(fast.token_probs, reference.token_probs, rtol=0, atol=PROB_BOUND)
+
+
+def test_speculation_past_a_done_and_over_many_rows(shipped, starts):
+    # Trajectories imagined past their done (as the benchmarks run them), 24 rows of mixed starts.
+    model, manual = shipped
+    first = np.concatenate([starts] * 4)
+    reference = run(model, manual, first, "reference", seed=5, stop_on_done=False)
+    fast = run(model, manual, first, "speculative", seed=5, stop_on_done=False)
+    assert_same_tokens(fast, reference)
+    np.testing.assert_allclose(fast.token_probs, reference.token_probs, rtol=0, atol=PROB_BOUND)
+
+
+def test_the_comparison_can_fail(shipped, starts):
+    # Another seed samples other tokens: the equality above is not vacuous.
+    model, manual = shipped
+    a = run(model, manual, starts, "speculative", seed=0)
+    b = run(model, manual, starts, "speculative", seed=1)
+    assert not np.array_equal(a.observations, b.observations)
+
+
+def test_the_draft_decides_speed_not_tokens(shipped, starts, monkeypatch):
+    # A draft that is always wrong (every token 0) costs a call per token but samples the same.
+    model, manual = shipped
+    reference = run(model, manual, starts, "reference", seed=2)
+
+    def wrong(last_obs, actions, last_done, last_reward):
+        return torch.zeros(len(last_obs), speculative.STEP_TOKENS, dtype=torch.long)
+
+    monkeypatch.setattr(speculative, "draft_block", wrong)
+    fast = run(model, manual, starts, "speculative", seed=2)
+    assert_same_tokens(fast, reference)
+
+
+def test_continuous_batching_on_the_fast_path(shipped, starts):
+    # Tracks join a running batch at different steps and leave at their own end: each row gets
+    # the tokens the reference path gives it, whatever shares its calls.
+    model, manual = shipped
+    cond = model.condition_on(manual)
+
+    def tracks() -> list[Track]:
+        out = []
+        for i in range(3):
+            n = 2 + i
+            first = starts[i : i + n]
+            actions = np.random.default_rng(i).integers(5, size=(n, STEPS))
+            out.append(Track(condition_rows(cond, n), first, actions, STEPS - 3 * i, seed=i, constrained=i == 1))
+        return out
+
+    def served(decoding: str) -> list:
+        batch, pending, done = ContinuousBatch(model, decoding=decoding), tracks(), []
+        while pending or len(batch):
+            if pending and (batch.steps % 2 == 0 or not len(batch)):
+                batch.admit(pending.pop(0))
+            done += batch.step() if len(batch) else []
+        return [t.result() for t in sorted(done, key=lambda t: t.seed)]
+
+    for fast, reference in zip(served("speculative"), served("reference"), strict=True):
+        assert_same_tokens(fast, reference)
+
+
+def test_the_default_is_speculative_and_the_reference_stays_selectable(shipped, monkeypatch):
+    model, _ = shipped
+    monkeypatch.delenv("LWM_DECODING", raising=False)
+    assert default_decoding() == "speculative"
+    assert isinstance(make_rows(model), FastRows)
+    assert type(make_rows(model, "reference")) is Rows
+    assert type(make_rows(model, use_cache=False)) is Rows  # no KV cache: the reference path
+    monkeypatch.setenv("LWM_DECODING", "reference")
+    assert type(make_rows(model)) is Rows
+    with pytest.raises(ValueError):
+        make_rows(model, "fastest")
+
+
+def test_cross_attention_falls_back_to_the_reference_path():
+    model = build_model("standard", PRESETS["tiny"]).eval()
+    assert type(make_rows(model, "speculative")) is Rows
+
+
+def test_the_flat_decoder_follows_the_weights():
+    torch.manual_seed(0)
+    model = build_model("observational", PRESETS["tiny"]).eval()
+    first = FlatDecoder.for_model(model)
+    assert FlatDecoder.for_model(model) is first
+    with torch.no_grad():
+        model.blocks[0].attn.qkv.weight.add_(1.0)
+    assert FlatDecoder.for_model(model) is not first
