@@ -50,8 +50,16 @@ def run(model, manual, first, decoding: str, constrained: bool = False, seed: in
     n = len(first)
     actions = np.random.default_rng(seed).integers(5, size=(n, STEPS))
     return imagine(
-        model, manual, first, n=n, actions=actions, max_steps=STEPS, seed=seed, stop_on_done=stop_on_done,
-        constrained=constrained, decoding=decoding,
+        model,
+        manual,
+        first,
+        n=n,
+        actions=actions,
+        max_steps=STEPS,
+        seed=seed,
+        stop_on_done=stop_on_done,
+        constrained=constrained,
+        decoding=decoding,
     )
 
 

@@ -233,8 +233,20 @@ class _Speculator(nn.Module):
         while rows.shape[0] > 0:
             ahead = _lookahead(rows.shape[0]) if lookahead < 0 else lookahead
             rows = self.forward(
-                stream, fed, known, block, probs, lengths, uniforms, temperature, rows, id_table, k_cache,
-                v_cache, ahead, None,
+                stream,
+                fed,
+                known,
+                block,
+                probs,
+                lengths,
+                uniforms,
+                temperature,
+                rows,
+                id_table,
+                k_cache,
+                v_cache,
+                ahead,
+                None,
             )
             calls += 1
         return calls
@@ -346,5 +358,6 @@ def _allowed_at_or_before(allowed: torch.Tensor, token: torch.Tensor) -> torch.T
     below = allowed & (vocab <= token[..., None])
     last_below = torch.where(below, vocab, -1).amax(-1)
     return torch.where(last_below >= 0, last_below, allowed.float().argmax(-1))
+
 
 __all__ = ["FastRows", "draft_block"]
