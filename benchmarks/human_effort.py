@@ -83,7 +83,7 @@ def run(args: argparse.Namespace) -> list[dict]:
         seed = args.seed + g
         truth = role_ids(game)
 
-        def person(hist: np.ndarray, obs: np.ndarray, steps: np.ndarray, truth=truth, seed=seed) -> np.ndarray:
+        def person(hist, obs, steps, traj, round_no, truth=truth, seed=seed) -> np.ndarray:
             return np.asarray([expert_actions(o[None], truth, int(s) + 1, seed)[0] for o, s in zip(obs, steps)])
 
         imaginer = LocalImaginer(world, world.read_manual(manual, encoder, list(game.triples)))

@@ -15,7 +15,7 @@ from urllib.parse import quote
 
 from .run_dirs import DEFAULT_LEDGER
 
-KINDS = ("plan", "feedback", "manual", "report", "label_request", "labels", "policy")
+KINDS = ("plan", "feedback", "manual", "report", "label_request", "labels", "policy", "self_teaching")
 
 
 class Ledger:
@@ -113,6 +113,9 @@ def headline(record: dict) -> str:
         what = f"label request {p['request_id']} (round {p['round']}/{p['rounds']}): {p['states']} states"
     elif record["kind"] == "labels":
         what = f"labels for request {p['request_id']}: {p['labels']} state(s)"
+    elif record["kind"] == "self_teaching":
+        roles = ", ".join(f"{e['identity']} {e['role']} ({e['p']:.0%})" for e in p["roles"])
+        what = f"taught itself from the manual: {p['rounds']} rounds, {p['self_labelled']} states; roles: {roles}"
     elif record["kind"] == "policy":
         what = f"policy saved after feedback #{p.get('after')}: {p['labelled']} labelled states ({p['path']})"
     else:

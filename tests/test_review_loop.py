@@ -20,6 +20,7 @@ from lwm_models.agent.learning import Budget
 from lwm_models.agent.policy import load_policy
 from lwm_models.agent.review import Ports, ReviewConfig, ReviewLoop
 from lwm_models.agent.reviewer import ScriptedReviewer
+from lwm_models.agent.self_teaching import Teaching
 from lwm_models.data.session import GameSession
 from lwm_models.ledger import Ledger
 from lwm_models.messenger.observation import InvalidObservation, check_observation
@@ -160,7 +161,8 @@ class LoopHarness:
             step or (lambda p: self.session.step(p["action"])),
             log=lambda s: None,
         )
-        config = ReviewConfig(futures=2, budget=budget, label_timeout=30, max_rereviews=0)
+        teaching = Teaching(rounds=budget.iterations, episodes=budget.episodes, grad_steps=budget.grad_steps)
+        config = ReviewConfig(futures=2, budget=budget, teaching=teaching, label_timeout=30, max_rereviews=0)
         self.ledger = Ledger(tempfile.mktemp(suffix=".sqlite"))
         self.loop = ReviewLoop(
             lambda: load_policy(SHIPPED_POLICY),

@@ -29,6 +29,8 @@ from ..world.imagine import Imagination
 from ..world.manual import ManualError
 from .learning import Budget, LabelledSet, RoundLabeller, fit_labels, online_imitation
 from .policy import EmmaPolicy, act, policy_manual, stack_history
+from .roles import RoleBelief
+from .self_teaching import Ask, Teaching, TeachingResult, teach
 from .understood import read_back
 
 
@@ -125,6 +127,8 @@ class PlanReviewAgent:
     labelled: LabelledSet = field(default_factory=LabelledSet)
     # The person's corrections in this review: state (history bytes) -> (history, action).
     pinned: dict = field(default_factory=dict)
+    belief: RoleBelief | None = None  # what the world model made of the roles (self-teaching)
+    taught_manual: tuple = ()  # the manual the agent last taught itself from
 
     def __post_init__(self) -> None:
         self._policy_manual = self._encode(self.manual)
@@ -284,6 +288,32 @@ class PlanReviewAgent:
         )
         self.hold_corrections()
         return losses
+
+    def teach_self(
+        self,
+        starts: np.ndarray,
+        teaching: Teaching,
+        ask: Ask | None = None,
+        seed: int = 0,
+        should_stop: Callable[[], bool] = lambda: False,
+        on_round: Callable[[int, TeachingResult], None] | None = None,
+        fresh: bool = False,
+    ) -> TeachingResult:
+        """Learn from the world model's reading of the manual (self_teaching.teach), asking `ask`
+        (the reviewer) only where the role assignments still in play disagree. The belief carries
+        over to the next call unless `fresh` (a new manual is read afresh); what the reviewer
+        labelled joins what they taught before, and their corrections hold afterwards."""
+        belief = None if fresh else self.belief
+        result = teach(
+            self.policy, self.imaginer, lambda: self._policy_manual, starts, teaching, ask, seed, belief,
+            should_stop, on_round,
+        )  # fmt: skip
+        self.belief = result.belief
+        self.taught_manual = tuple(self.manual)
+        if result.taught is not None:
+            self.labelled.add(*result.taught)
+        self.hold_corrections()
+        return result
 
     def _fit(self, updates: int) -> None:
         h, y = self.labelled.arrays()

@@ -39,8 +39,9 @@ from ..errors import LwmError
 from ..ledger import Ledger
 from .agent import Correction, FeedbackError, Plan, PlanReviewAgent, start_observations_like
 from .imaginer import Unavailable
-from .learning import Budget, LabelledSet, imagined_states
+from .learning import Budget, LabelledSet
 from .policy import EmmaPolicy, load_policy, save_policy
+from .self_teaching import Teaching
 
 LABELS = "labels.safetensors"  # beside a review's policy snapshot: the states labelled so far
 MAX_EARLY = 100  # feedback and labels kept while no review is open (a restarted planner)
@@ -64,7 +65,7 @@ TAKEN = {
     "approve": "plan {plan} approved: the agent now acts in the real game",
     "reject": "plan {plan} rejected: the agent imagines a new plan",
     "corrections": "corrections of plan {plan} taken: the agent learns them and re-plans",
-    "imitate": "teaching started on plan {plan}: label requests follow",
+    "imitate": "teaching started on plan {plan}: the agent asks about the states it is unsure of",
     "demonstrations": "demonstrations taken: the agent learns them and re-plans",
     "abort": "plan {plan} aborted: nothing is executed",
 }
@@ -81,7 +82,10 @@ class ReviewConfig:
     futures: int = 8  # sampled futures of the policy shown with each plan
     max_steps: int = 32  # the game's time limit
     correction_updates: int = 30  # minibatch steps after corrections
-    budget: Budget = field(default_factory=lambda: Budget(overlap=True))  # online imitation
+    # Learning from the manual alone before a plan is shown (rounds 0: never), and what teaching
+    # asks of the reviewer: at most per_round states a round, only where the roles are in doubt.
+    teaching: Teaching = field(default_factory=Teaching)
+    budget: Budget = field(default_factory=lambda: Budget(overlap=True))  # demonstrations (filtered BC)
     clone_updates: int = 400  # filtered BC: steps on the reviewer's demonstrations (Table 3: 40 x 10)
     label_timeout: float = 120.0  # seconds to wait for a round's labels; imitation ends without them
     risk_threshold: float = 0.5  # execution stops when this share of imagined futures die ...
@@ -385,10 +389,7 @@ class ReviewLoop:
             r.learned["corrections"] += len(fixes)
             self._save_policy(r, record)
         elif decision == "imitate":
-            budget = self.config.budget
-            if "rounds" in msg:
-                budget = Budget(**{**budget.__dict__, "iterations": int(msg["rounds"])})
-            self._imitate(r, budget)
+            self._teach(r, int(msg.get("rounds", self.config.teaching.rounds)))
             self._save_policy(r, record)
         elif decision == "demonstrations":
             a.clone(msg["demonstrations"], self.config.clone_updates)
@@ -407,6 +408,9 @@ class ReviewLoop:
 
     def _plan(self, r: Review, reason: str) -> None:
         start, start_step, before = self._start_of(r)
+        unread = r.agent.taught_manual != tuple(r.agent.manual)  # a manual it has not taught itself from
+        if reason in ("start", "manual") and self.config.teaching.rounds and unread:
+            self._teach_self(r, fresh=reason == "manual")
         for _ in range(3):  # a manual that changed while imagining makes the plan stale: imagine again
             with self.lock:
                 r.plans += 1
@@ -429,7 +433,9 @@ class ReviewLoop:
         )
 
     def _plan_message(self, r: Review, plan: Plan, reason: str) -> dict:
+        belief = r.agent.belief
         return {
+            **({"roles": belief.describe()} if belief is not None else {}),
             "review_id": r.review_id,
             "manual": list(r.agent.manual),
             "reason": reason,
@@ -438,19 +444,49 @@ class ReviewLoop:
             **plan.to_json(),
         }
 
-    # ------------------------------------------------------------------ online imitation
-    def _imitate(self, r: Review, budget: Budget) -> None:
+    # ------------------------------------------------------------------ learning
+    def _starts(self, r: Review) -> np.ndarray:
+        """Where imagined rounds start: the game's first boards; asked again mid-episode, half
+        from the real state."""
         start, start_step, _ = self._start_of(r)
         starts = start_observations_like(r.first_obs)
-        if start_step:  # asked again mid-episode: half the rounds' episodes start from the real state
+        if start_step:
             starts = np.concatenate([starts, np.repeat(start[None], len(starts), 0)])
-        stop = {"now": False}
+        return starts
 
-        def label_round(im, round_no: int):
-            hist, obs, steps, traj = imagined_states(im, self.config.max_steps)
+    def _teach_self(self, r: Review, fresh: bool) -> None:
+        """Learn from the manual alone, asking nobody, before the plan is shown."""
+        began = time.perf_counter()
+        result = r.agent.teach_self(
+            self._starts(r),
+            self.config.teaching,
+            seed=r.seed * 1000 + r.plans,
+            should_stop=lambda: self.closing.is_set() or self.review is not r,
+            fresh=fresh,
+        )
+        summary = result.summary()
+        record = self.ledger.record(r.review_id, "self_teaching", summary)
+        self._save_policy(r, record)
+        roles = ", ".join(f"{e['identity']} {e['role']} ({e['p']:.0%})" for e in summary["roles"])
+        self.ports.log(
+            f"review {r.review_id}: taught itself from the manual in {time.perf_counter() - began:.1f} s "
+            f"({result.rounds} rounds, {result.self_labelled} imagined states); roles as the world model read them: "
+            f"{roles}"
+        )
+
+    def _teach(self, r: Review, rounds: int) -> None:
+        """Teaching with the reviewer: rounds of self-teaching in which the agent asks the
+        reviewer about the states where the role assignments still in play disagree (at most
+        teaching.per_round a round); none when the roles are settled."""
+        teaching = Teaching(**{**self.config.teaching.__dict__, "rounds": rounds})
+        teaching.label_budget = rounds * teaching.per_round
+        stopped = {"now": False}
+
+        def ask(hist: np.ndarray, obs: np.ndarray, steps: np.ndarray, traj: np.ndarray, round_no: int) -> np.ndarray:
+            none = np.full(len(obs), -1, dtype=np.int64)
             with self.lock:
-                if r.stop_teaching.is_set():  # stopped while this round was imagined: ask for nothing
-                    return hist[:0], np.zeros(0, dtype=np.int64)
+                if r.stop_teaching.is_set():
+                    return none
                 r.requests += 1
                 r.labels_in.clear()
                 r.labels = None
@@ -458,9 +494,11 @@ class ReviewLoop:
                     "review_id": r.review_id,
                     "request_id": r.requests,
                     "round": round_no,
-                    "rounds": budget.iterations,
-                    "manual_version": im.manual_version,
+                    "rounds": rounds,
+                    "manual_version": self.manual_version,
                     "observations": obs.tolist(),
+                    # the board a step earlier (a person judges movement from two frames)
+                    "previous": [h[-2].tolist() if s > 0 else None for h, s in zip(hist, steps, strict=True)],
                     "steps": steps.tolist(),
                     "trajectories": traj.tolist(),
                     "timeout": self.config.label_timeout,
@@ -468,45 +506,46 @@ class ReviewLoop:
                 self.ledger.record(
                     r.review_id,
                     "label_request",
-                    {"request_id": r.requests, "round": round_no, "rounds": budget.iterations, "states": len(obs)},
+                    {"request_id": r.requests, "round": round_no, "rounds": rounds, "states": len(obs)},
                 )
                 request = r.request
             self.ports.publish_label_request(request)
             got = r.labels_in.wait(self.config.label_timeout)
             with self.lock:
                 labels, r.labels, r.request = r.labels, None, None
-            if r.stop_teaching.is_set():  # should_stop sees it before the next round
+            if r.stop_teaching.is_set():
                 self.ports.log(f"review {r.review_id}: the reviewer stopped the teaching at round {round_no}")
-                return hist[:0], np.zeros(0, dtype=np.int64)
+                return none
             if not got or labels is None:
-                stop["now"] = True
-                self.ports.log(f"review {r.review_id}: no labels for request {request['request_id']}; imitation ends")
-                return hist[:0], np.zeros(0, dtype=np.int64)
+                stopped["now"] = True
+                self.ports.log(f"review {r.review_id}: no labels for request {request['request_id']}; teaching ends")
+                return none
             idx, actions = labels
+            none[idx] = actions
             r.learned["imitation_rounds"] += 1
-            return hist[idx], actions
+            return none
 
-        timings: dict[str, float] = {}
         began = time.perf_counter()
         with self.lock:
             r.teaching = True
             r.stop_teaching.clear()
         try:
-            r.agent.imitate(
-                label_round,
-                starts,
-                budget,
+            result = r.agent.teach_self(
+                self._starts(r),
+                teaching,
+                ask,
                 seed=r.seed * 1000 + r.plans,
                 should_stop=lambda: (
-                    stop["now"] or r.stop_teaching.is_set() or self.closing.is_set() or self.review is not r
+                    stopped["now"] or r.stop_teaching.is_set() or self.closing.is_set() or self.review is not r
                 ),
-                timings=timings,
             )
         finally:
             with self.lock:
                 r.teaching = False
-        spent = ", ".join(f"{k} {v:.1f} s" for k, v in timings.items())
-        self.ports.log(f"review {r.review_id}: imitation took {time.perf_counter() - began:.1f} s ({spent})")
+        self.ports.log(
+            f"review {r.review_id}: teaching took {time.perf_counter() - began:.1f} s, {result.asked} state(s) asked, "
+            f"{result.answered} labelled, roles {result.belief.describe()}"
+        )
 
     # ------------------------------------------------------------------ execution, closed loop
     def _env(self, call: Callable[[dict], dict], payload: dict) -> dict:

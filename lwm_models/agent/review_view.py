@@ -66,10 +66,12 @@ def label_request_view(request: dict) -> dict:
     episode in (the request lists them step by step across trajectories)."""
     steps, trajectories = request["steps"], request["trajectories"]
     at = {(traj, step): k for k, (traj, step) in enumerate(zip(trajectories, steps, strict=True))}
+    previous = request.get("previous")  # a request of chosen states carries the board before each
     return {
         **request,
         "frames": frames(request["observations"]),
         "before": [at.get((traj, step - 1), -1) for traj, step in zip(trajectories, steps, strict=True)],
+        "before_frames": None if previous is None else [None if o is None else frames([o])[0] for o in previous],
         "order": sorted(range(len(steps)), key=lambda k: (trajectories[k], steps[k])),
     }
 

@@ -196,17 +196,29 @@ class RoleBelief:
         h = int(p.argmax())
         return self.assignments[h], float(p[h])
 
+    def _policies(self, obs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The weights [m] of the assignments in play and their experts' action distributions
+        [m, n, 5] (even over equally good actions) in each observation [n, 4, 3]."""
+        p = self.p
+        live = np.flatnonzero(p >= 1e-4)
+        dists = []
+        for h in live:
+            choices = expert_choices(np.asarray(obs), np.asarray(self.assignments[h], dtype=np.int64))
+            dists.append(choices / choices.sum(1, keepdims=True))
+        return p[live] / p[live].sum(), np.stack(dists)
+
     def votes(self, obs: np.ndarray) -> np.ndarray:
-        """[n, 5]: the posterior weight of each action in each observation [n, 4, 3]: each
-        assignment spreads its probability evenly over the expert's equally good actions."""
-        obs = np.asarray(obs)
-        out = np.zeros((len(obs), 5))
-        for h, w in enumerate(self.p):
-            if w < 1e-4:
-                continue
-            choices = expert_choices(obs, np.asarray(self.assignments[h], dtype=np.int64))
-            out += w * choices / choices.sum(1, keepdims=True)
-        return out
+        """[n, 5]: the posterior weight of each action in each observation [n, 4, 3]."""
+        w, dists = self._policies(obs)
+        return np.einsum("m,mna->na", w, dists)
+
+    def doubt(self, obs: np.ndarray) -> np.ndarray:
+        """[n]: how much the assignments in play disagree on what to do in each observation: the
+        weighted total variation between each one's expert and their mixture. Zero where they all
+        would act alike, however indifferent the expert is between equally good moves."""
+        w, dists = self._policies(obs)
+        mixture = np.einsum("m,mna->na", w, dists)
+        return np.einsum("m,mn->n", w, 0.5 * np.abs(dists - mixture[None]).sum(-1))
 
     def labels(self, obs: np.ndarray, steps: np.ndarray, seed: int = 0) -> np.ndarray:
         """[n]: the action most of the belief's weight gives each observation [n, 4, 3] at step

@@ -32,9 +32,9 @@ from .learning import fit_labels, imagined_states
 from .policy import EmmaPolicy, act, stack_history
 from .roles import RoleBelief, believe
 
-Ask = Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
-"""ask(histories [k, 3, 4, 3], observations [k, 4, 3], steps [k] (0 = the start)) -> the reviewer's
-actions [k], or -1 where they gave none."""
+Ask = Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int], np.ndarray]
+"""ask(histories [k, 3, 4, 3], observations [k, 4, 3], steps [k] (0 = the start), imagined
+trajectories [k], round) -> the reviewer's actions [k], or -1 where they gave none."""
 
 
 @dataclass
@@ -54,7 +54,7 @@ class Teaching:
         default=5, metadata={"help": "labels asked at most in one round (the belief moves between rounds)"}
     )
     ask_above: float = field(
-        default=0.05, metadata={"help": "ask about a state only when this share of the belief disagrees"}
+        default=0.05, metadata={"help": "ask about a state only when the belief's assignments disagree this much"}
     )
     constrained: bool = field(default=False, metadata={"help": "imagine under the game's rules"})
 
@@ -67,6 +67,7 @@ class TeachingResult:
     rounds: int = 0
     self_labelled: int = 0  # states the agent labelled itself
     seconds: dict[str, float] = field(default_factory=dict)
+    taught: tuple[np.ndarray, np.ndarray] | None = None  # (histories, actions) the reviewer labelled
 
     def summary(self) -> dict:
         assignment, p = self.belief.best()
@@ -82,18 +83,13 @@ class TeachingResult:
         }
 
 
-def disagreement(votes: np.ndarray) -> np.ndarray:
-    """[n]: the share of the committee's weight against its favourite action, per state."""
-    return 1.0 - votes.max(1) / np.maximum(votes.sum(1), 1e-12)
-
-
 def choose_questions(belief: RoleBelief, obs: np.ndarray, k: int, above: float) -> np.ndarray:
     """Indices of at most k states worth asking about: those on which the belief's assignments
     disagree most, above `above`; distinct observations only (the same board asked twice is a
     waste of the person's time)."""
     if k <= 0 or not len(obs):
         return np.zeros(0, dtype=np.int64)
-    score = disagreement(belief.votes(obs))
+    score = belief.doubt(obs)
     chosen, seen = [], set()
     for i in np.argsort(-score, kind="stable"):
         if score[i] < above or len(chosen) == k:
@@ -159,7 +155,7 @@ def teach(
             seed=seed * 10_000 + u,
             constrained=config.constrained,
         )
-        hist, obs, steps, _ = imagined_states(im, 32)
+        hist, obs, steps, traj = imagined_states(im, 32)
         began = spend("imagine", began)
 
         keep = np.ones(len(obs), dtype=bool)
@@ -167,7 +163,7 @@ def teach(
         if ask is not None and room > 0:
             chosen = choose_questions(belief, obs, room, config.ask_above)
             if len(chosen):
-                answers = np.asarray(ask(hist[chosen], obs[chosen], steps[chosen]), dtype=np.int64)
+                answers = np.asarray(ask(hist[chosen], obs[chosen], steps[chosen], traj[chosen], u + 1), dtype=np.int64)
                 result.asked += len(chosen)
                 given = answers >= 0
                 result.answered += int(given.sum())
@@ -193,7 +189,9 @@ def teach(
         result.self_labelled = len(labels)
         if on_round is not None:
             on_round(u + 1, result)
+    if their_labels:
+        result.taught = (np.concatenate(their_hist), np.concatenate(their_labels))
     return result
 
 
-__all__ = ["Ask", "Teaching", "TeachingResult", "choose_questions", "disagreement", "teach"]
+__all__ = ["Ask", "Teaching", "TeachingResult", "choose_questions", "teach"]

@@ -327,12 +327,13 @@ class HumanNode(JsonNode):
                 )
         else:
             print(
-                f"label request {request['request_id']} (round {request['round']}/{request['rounds']}): {n} imagined "
-                f"states; label the ones you are sure of with l STATE:ACTION ... (states 0..{n - 1}), l - for none; "
-                f"the planner waits {waits:.0f} s; stop ends the teaching",
+                f"label request {request['request_id']} (round {request['round']}/{request['rounds']}): the agent "
+                f"asks about {n} imagined state(s); label them with l STATE:ACTION ... (states 0..{n - 1}), l - for "
+                f"none; s N shows state N; the planner waits {waits:.0f} s; stop ends the teaching",
                 flush=True,
             )
-            self.show_state(0)
+            for k in range(n):
+                self.show_state(k)
 
     def request_issued(self, request: dict) -> float | None:
         """When the planner issued this label request (wall time), or None when it waits for it no
@@ -371,8 +372,12 @@ class HumanNode(JsonNode):
             raise ValueError("there is no label request")
         if not 0 <= k < len(request["observations"]):
             raise ValueError(f"state {k} is not in the request (states 0..{len(request['observations']) - 1})")
-        before = label_request_view(request)["before"][k]
-        print(state_text(request, k, request["observations"][before] if before >= 0 else None), flush=True)
+        if request.get("previous") is not None:  # chosen states, each with the board before it
+            earlier = request["previous"][k]
+        else:
+            before = label_request_view(request)["before"][k]
+            earlier = request["observations"][before] if before >= 0 else None
+        print(state_text(request, k, earlier), flush=True)
 
     def on_page_feedback(self, body: dict) -> str:
         """An answer from the page; the schema (checked before publishing) refuses a wrong one,
