@@ -58,6 +58,8 @@ def system(tmp_path_factory):
             "--quiet",
             "--max-restarts",
             "2",
+            "--iterations",
+            "3",
         ],
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,

@@ -4,7 +4,7 @@ A review is one real episode. It opens when the episode's first state and the si
 for that game are both known, and goes through these phases:
 
     planning  -> reviewing -> (feedback) -> planning ... -> executing -> done
-                    |  imitate: labelling rounds (label requests out, labels in)
+                    |  imitate: teaching rounds (label requests of a few states out, labels in)
                     |  abort: done, nothing executed
     executing -> (the world model, from the real state, gives death a share the plan did not
                   show) -> planning from the real state -> reviewing -> executing (resumed)
@@ -75,17 +75,15 @@ STOP_EXECUTION_TAKEN = "the agent stops playing before its next move: a report o
 
 @dataclass
 class ReviewConfig:
-    """How the planner reviews. Defaults reproduce Table 3's online-imitation recipe, except that
-    the rounds overlap (Budget.overlap: the simulator imagines round u+1 while the planner learns
-    from round u, on the other core; the acting policy is one round behind)."""
+    """How the planner reviews. Before the first plan under each manual the agent teaches itself
+    from the manual alone (`teaching`, lwm_models/agent/self_teaching.py); a reviewer who
+    chooses to teach ("imitate") is asked about `teaching.per_round` states a round."""
 
     futures: int = 8  # sampled futures of the policy shown with each plan
     max_steps: int = 32  # the game's time limit
     correction_updates: int = 30  # minibatch steps after corrections
-    # Learning from the manual alone before a plan is shown (rounds 0: never), and what teaching
-    # asks of the reviewer: at most per_round states a round, only where the roles are in doubt.
-    teaching: Teaching = field(default_factory=Teaching)
-    budget: Budget = field(default_factory=lambda: Budget(overlap=True))  # demonstrations (filtered BC)
+    teaching: Teaching = field(default_factory=Teaching)  # rounds 0: no learning from the manual alone
+    budget: Budget = field(default_factory=Budget)  # demonstrations (filtered BC)
     clone_updates: int = 400  # filtered BC: steps on the reviewer's demonstrations (Table 3: 40 x 10)
     label_timeout: float = 120.0  # seconds to wait for a round's labels; imitation ends without them
     risk_threshold: float = 0.5  # execution stops when this share of imagined futures die ...
@@ -476,9 +474,10 @@ class ReviewLoop:
 
     def _teach(self, r: Review, rounds: int) -> None:
         """Teaching with the reviewer: rounds of self-teaching in which the agent asks the
-        reviewer about the states where the role assignments still in play disagree (at most
-        teaching.per_round a round); none when the roles are settled."""
-        teaching = Teaching(**{**self.config.teaching.__dict__, "rounds": rounds})
+        reviewer about teaching.per_round states a round: those the role assignments still in
+        play disagree on, then those its policy is least sure of."""
+        # The reviewer chose to teach: every round shows them states, even once the roles are settled.
+        teaching = Teaching(**{**self.config.teaching.__dict__, "rounds": rounds, "fill": True})
         teaching.label_budget = rounds * teaching.per_round
         stopped = {"now": False}
 

@@ -57,6 +57,13 @@ class Teaching:
         default=0.05, metadata={"help": "ask about a state only when the belief's assignments disagree this much"}
     )
     constrained: bool = field(default=False, metadata={"help": "imagine under the game's rules"})
+    fill: bool = field(
+        default=False,
+        metadata={
+            "help": "every round asks per_round states (a person who chose to teach): where the roles are in "
+            "doubt first, then where the policy is least sure"
+        },
+    )
 
 
 @dataclass
@@ -99,6 +106,26 @@ def choose_questions(belief: RoleBelief, obs: np.ndarray, k: int, above: float) 
             seen.add(key)
             chosen.append(int(i))
     return np.asarray(chosen, dtype=np.int64)
+
+
+def _with_unsure(
+    policy: EmmaPolicy, manual: ManualBatch, hist: np.ndarray, obs: np.ndarray, chosen: np.ndarray, k: int
+) -> np.ndarray:
+    """`chosen`, filled up to k with the distinct states where the policy's favourite action is
+    least probable."""
+    with torch.no_grad():
+        logits = policy(
+            torch.from_numpy(np.ascontiguousarray(hist)), policy.id_values(manual).expand(len(hist), -1, -1)
+        )
+    sure = torch.softmax(logits, -1).max(-1).values.numpy()
+    out, seen = list(chosen), {obs[i].tobytes() for i in chosen}
+    for i in np.argsort(sure, kind="stable"):
+        if len(out) == k:
+            break
+        if obs[i].tobytes() not in seen:
+            seen.add(obs[i].tobytes())
+            out.append(int(i))
+    return np.asarray(out, dtype=np.int64)
 
 
 def teach(
@@ -162,6 +189,8 @@ def teach(
         room = min(config.per_round, config.label_budget - result.asked)
         if ask is not None and room > 0:
             chosen = choose_questions(belief, obs, room, config.ask_above)
+            if config.fill and len(chosen) < room:
+                chosen = _with_unsure(policy, manual, hist, obs, chosen, room)
             if len(chosen):
                 answers = np.asarray(ask(hist[chosen], obs[chosen], steps[chosen], traj[chosen], u + 1), dtype=np.int64)
                 result.asked += len(chosen)

@@ -318,7 +318,11 @@ def main(argv: list[str] | None = None) -> int:
         "in the key file)",
     )
     parser.add_argument(
-        "--iterations", type=int, default=None, help="online-imitation rounds per teaching (default 40, Table 3's)"
+        "--iterations",
+        type=int,
+        default=None,
+        help="rounds of the agent's learning in imagination: on its own from each new manual, and when a reviewer "
+        "teaches (default 10; 0: no learning from the manual alone)",
     )
     parser.add_argument("--futures", type=int, default=None, help="sampled futures shown with each plan (default 8)")
     parser.add_argument(

@@ -21,6 +21,7 @@ from lwm_models.agent.imaginer import ServiceImaginer
 from lwm_models.agent.learning import Budget
 from lwm_models.agent.policy import EmmaPolicy, load_policy
 from lwm_models.agent.review import Ports, ReviewConfig, ReviewLoop
+from lwm_models.agent.self_teaching import Teaching
 from lwm_models.errors import LwmError
 from lwm_models.ledger import Ledger
 from lwm_models.run_dirs import DEFAULT_LEDGER
@@ -39,18 +40,19 @@ class PlannerNode(JsonNode):
         self.policy_dir = p("policy", "").value
         ledger = p("ledger", str(DEFAULT_LEDGER)).value
         call_timeout = float(p("call_timeout", 30.0).value)
-        budget = Budget(
-            iterations=int(p("iterations", Budget.iterations).value),
-            episodes=int(p("episodes", Budget.episodes).value),
-            grad_steps=int(p("grad_steps", Budget.grad_steps).value),
-            # The simulator imagines the next round while the planner learns from the last one.
-            overlap=bool(p("overlap", ReviewConfig().budget.overlap).value),
-            # Learning rounds imagined under the game's rules too (Table 3: raw learns better).
-            constrained=bool(p("constrained_learning", False).value),
+        # Learning rounds imagined under the game's rules too (Table 3: raw learns better).
+        constrained_learning = bool(p("constrained_learning", False).value)
+        teaching = Teaching(
+            rounds=int(p("iterations", Teaching.rounds).value),
+            episodes=int(p("episodes", Teaching.episodes).value),
+            grad_steps=int(p("grad_steps", Teaching.grad_steps).value),
+            per_round=int(p("labels_per_round", Teaching.per_round).value),
+            constrained=constrained_learning,
         )
         config = ReviewConfig(
             futures=int(p("futures", ReviewConfig.futures).value),
-            budget=budget,
+            teaching=teaching,
+            budget=Budget(constrained=constrained_learning),
             label_timeout=float(p("label_timeout", ReviewConfig.label_timeout).value),
             risk_threshold=float(p("risk_threshold", ReviewConfig.risk_threshold).value),
             risk_horizon=int(p("risk_horizon", ReviewConfig.risk_horizon).value),
