@@ -8,7 +8,7 @@ twice, argmax actions). Budget 0 is the manual alone. The "every state" column i
 imitation (the simulated person labels every imagined state) from its records, for the same games.
 
     .venv/bin/python benchmarks/human_effort.py --data data/human-newall-test --games 10 \
-        --records results/human-effort/records.jsonl
+        --records results/human_effort/records.jsonl
 
 Records are appended one per (model, game, budget), so a run can stop and resume; `--from-records`
 only makes the summary, the table and the plot. The summary (`--summary`) has the shape

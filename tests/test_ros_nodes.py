@@ -601,7 +601,9 @@ def test_scripted_review_loop_end_to_end(tmp_path):
         timeout=60,
     )
     kinds = [line.split()[2] for line in shown.stdout.splitlines()[1:]]
-    assert kinds[:4] == ["manual", "plan", "manual", "plan"] and "feedback" in kinds and kinds[-1] == "executed"
+    # Under each manual the agent taught itself before its plan (the "taught" lines).
+    assert kinds[:8] == ["manual", "taught", "policy", "plan", "manual", "taught", "policy", "plan"], kinds
+    assert "feedback" in kinds and kinds[-1] == "executed"
     from lwm_models.ledger import Ledger
 
     records = Ledger(ledger).history()

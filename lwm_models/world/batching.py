@@ -272,7 +272,7 @@ class WorkerImagineServer(ImagineServer):
 
     workers: processes, each with its own batch and one core's worth of model steps. A step of
     the small model costs nearly as much for one row as for eight, so one worker gives 8 clients
-    the most rows per step; a second one uses a second core (README, "Under load and abuse")."""
+    the most rows per step; a second one uses a second core (docs/benchmarks.md)."""
 
     def __init__(self, sim: Simulator, max_trajectories: int = MAX_ROWS, threads: int = 1, workers: int = 1) -> None:
         if workers < 1:

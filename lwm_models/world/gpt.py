@@ -25,7 +25,7 @@ class DecoderConfig:
     heads: attention heads per block (paper: 4); hidden must divide by it.
     dropout: dropout on embeddings, residual branches and MLPs (paper: 0.1).
     attn_dropout: dropout on attention probabilities; None means `dropout`. 0 lets PyTorch use
-        its fused CPU attention kernel (a measured speed option, documented in the README).
+        its fused CPU attention kernel (faster on CPU; dropout then acts elsewhere only).
     cross_attention: add a cross-attention sub-layer to every block (the Standard baseline).
     kv_heads: key/value heads of self-attention; None means `heads` (standard multi-head, the
         paper). Fewer (grouped-query; 1 is multi-query attention) shrink the KV cache that
