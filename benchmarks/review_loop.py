@@ -5,6 +5,8 @@ let the review run to its execution report, and read the ledger and the planner'
 Prints per game and overall: real return (mean, 95% interval over games), outcome, whether an
 approved plan's shown trajectory died, time from feedback to the revised plan per feedback kind
 (p50, max; language feedback: the reviewer's first answer is the true manual in other words),
+the reviewer's effort per game next to its return (labels asked and given, corrected steps,
+manuals written; `--teach none`: the manual is all the reviewer gives),
 the /lwm/imagine calls and their overhead over the simulator's own time, and the
 comparison with Table 3's online-imitation records on the same games (results/table3/records-10-games-emma-lwm.jsonl,
 the shipped EMMA-LWM's).
@@ -82,6 +84,9 @@ def run_game(index: int, seed: int, args, work: Path) -> dict:
         if nxt is not None and nxt["payload"]["reason"] == "manual":
             revise.append(("manual", nxt["time"] - said))
     m = STATS.search((logs / "planner.log").read_text())
+    # The reviewer's effort: every state a label request asked about, the labels given, the
+    # corrected steps and the manuals written (the scripted reviewer answers all it is asked).
+    feedback = [r["payload"] for r in records if r["kind"] == "feedback"]
     return {
         "game": index,
         "seed": seed,
@@ -89,6 +94,12 @@ def run_game(index: int, seed: int, args, work: Path) -> dict:
         "outcome": report["outcome"],
         "reviews_asked": report.get("reviews_asked", 0),
         "plans": len(plans),
+        "labels_asked": sum(r["payload"]["states"] for r in records if r["kind"] == "label_request"),
+        "labels_given": sum(r["payload"]["labels"] for r in records if r["kind"] == "labels"),
+        "corrections": sum(len(f.get("corrections", [])) for f in feedback if f["decision"] == "corrections"),
+        "manuals_written": sum(
+            1 for r in records if r["kind"] == "manual" and r["payload"].get("source") not in ("", "env")
+        ),
         "approved_plan_died": any(any(x < 0 for x in p["rewards"]) for p in approved),
         "revise": revise,
         "imagine_calls": int(m.group(1)) if m else None,
@@ -103,14 +114,16 @@ def main() -> int:
     p.add_argument("--games", type=int, default=10, help="test games, spread as lwm agent table3 --games picks them")
     p.add_argument("--split", default="newall-test")
     p.add_argument("--seed", type=int, default=0, help="episode seed of every game")
-    p.add_argument("--teach", default="online_il", choices=["online_il", "filtered_bc", "corrections"])
+    p.add_argument("--teach", default="online_il", choices=["online_il", "filtered_bc", "corrections", "none"])
     p.add_argument(
         "--language",
         action=argparse.BooleanOptionalAction,
         default=True,
         help="the scripted reviewer first gives language feedback (the true manual in other words)",
     )
-    p.add_argument("--iterations", type=int, default=None, help="online-imitation rounds (default: Table 3's 40)")
+    p.add_argument(
+        "--iterations", type=int, default=None, help="the planner's learning rounds (default: the launcher's)"
+    )
     p.add_argument(
         "--constrained",
         action=argparse.BooleanOptionalAction,
@@ -154,6 +167,14 @@ def main() -> int:
     print(f"\nreal return over {len(r)} games: {r.mean():+.2f} (95% t interval {lo:+.2f}..{hi:+.2f})")
     print("outcomes:", {o: sum(x["outcome"] == o for x in rows) for o in ("won", "died", "time_limit", "aborted")})
     print(f"approved plans whose shown trajectory died: {sum(x['approved_plan_died'] for x in rows)}")
+    print("per game: real return, then the reviewer's effort (labels asked / given, corrected steps, manuals)")
+    for x in rows:
+        print(
+            f"  game {x['game']:4d}: {x['real_return']:+.2f} {x['outcome']:10s} labels {x['labels_asked']:3d} / "
+            f"{x['labels_given']:3d}, corrections {x['corrections']:2d}, manuals {x['manuals_written']}"
+        )
+    asked = np.array([x["labels_asked"] for x in rows])
+    print(f"labels asked per game: mean {asked.mean():.1f}, max {asked.max()}")
     kinds = sorted({k for x in rows for k, _ in x["revise"]})
     for k in kinds:
         t = np.array([s for x in rows for kk, s in x["revise"] if kk == k])

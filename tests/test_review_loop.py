@@ -133,11 +133,13 @@ def plan_dict(rewards: list[float], death_share: float, ret: float | None = None
 
 def test_the_scripted_reviewer_never_approves_a_plan_that_dies():
     game = GameSession("newall-test", 0).env.spec
-    for teach in ("online_il", "corrections"):
+    for teach in ("online_il", "corrections", "none"):
         reviewer = ScriptedReviewer(game, teach=teach)
         decisions = [reviewer.review({**plan_dict([0.0, -1.0], 0.0), "plan_id": i})["decision"] for i in range(1, 30)]
         assert "approve" not in decisions and decisions[-1] == "abort"
         assert (decisions[0] == "imitate") == (teach == "online_il")
+        # "none" gives no labels and no corrections: what the agent learns, it learns from the manual.
+        assert ("corrections" in decisions) == (teach != "none"), (teach, decisions)
     reviewer = ScriptedReviewer(game)
     assert reviewer.review(plan_dict([0.5, 1.0], 0.0))["decision"] == "approve"
     assert reviewer.review(plan_dict([0.5, 1.0], 0.9))["decision"] != "approve"  # most futures die

@@ -178,6 +178,9 @@ def test_review_in_the_browser(unnamed_page_system, browser):
     # Beside what the text says, what the world model imagined of each entity on the board.
     imagined = [e.text for e in browser.find_elements("css selector", "#imagined div")]
     assert len(imagined) == 3 and all(": " in line and "; " in line for line in imagined), imagined
+    # The agent taught itself from the manual before this plan: the roles it acts on are said.
+    believes = browser.find_element("id", "believes").text
+    assert believes.startswith("the agent acts on: ") and believes.count(" the ") == 3, believes
     shoot(browser, tmp_path, "review_page_plan.png")
 
     # Language feedback from the page: the enemy's description reworded.

@@ -32,3 +32,17 @@ def test_a_label_request_state_is_shown_beside_the_one_before_it():
     assert alone.startswith("state 0 of 3") and alone.count("+---") == 2 and "l 0:ACTION" in alone
     paired = state_text(request, 1, request["observations"][0])
     assert "a step before" in paired and paired.count("+---") == 4 and "+   +---" in paired  # side by side
+
+
+def test_the_roles_the_agent_acts_on_are_said_on_the_terminal_and_the_page():
+    from lwm_models.agent.review_view import plan_view
+
+    plan = copy.deepcopy(messages.schema("plan")["examples"][0])
+    assert "acts on" not in plan_text(plan) and plan_view(plan)["believes"] is None  # no belief: nothing said
+    plan["roles"] = [
+        {"id": 2, "identity": "airplane", "role": "enemy", "p": 0.91},
+        {"id": 7, "identity": "ball", "role": "message", "p": 0.55},
+        {"id": 10, "identity": "robot", "role": "goal", "p": 0.91},
+    ]
+    said = "the agent acts on: airplane the enemy (91% sure), ball the message (unsure), robot the goal (91% sure)"
+    assert said in plan_text(plan) and plan_view(plan)["believes"] == said

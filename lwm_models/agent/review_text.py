@@ -15,7 +15,7 @@ import numpy as np
 from ..messenger.constants import ACTION_NAMES
 from ..messenger.render import legend as board_legend
 from ..messenger.render import render_ascii
-from .understood import describe
+from .understood import believed, describe
 
 ACTIONS_KEY = "actions: " + "  ".join(f"{i} {name}" for i, name in enumerate(ACTION_NAMES))
 
@@ -58,6 +58,8 @@ def plan_text(plan: dict, frames: str = "ends") -> str:
     lines += [f"board: {board_legend(first)}", ACTIONS_KEY]
     for entry in plan.get("understood", []):  # what the world model made of the manual
         lines.append(f"imagined {entry['identity']}: {describe(entry)}")
+    if plan.get("roles"):
+        lines.append(believed(plan["roles"]))
     steps = []
     for t, action in enumerate(plan["actions"], 1):
         said = step_event(plan["rewards"][t - 1], plan["dones"][t - 1])

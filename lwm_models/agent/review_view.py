@@ -15,7 +15,7 @@ import numpy as np
 from ..ledger import headline
 from ..messenger.render import board, identity_style
 from ..text.parser import parse_description
-from .understood import describe
+from .understood import believed, describe
 
 
 def frames(observations: Sequence) -> list[list[dict]]:
@@ -47,7 +47,9 @@ def plan_view(plan: dict) -> dict:
     for entry in plan.get("understood", []):
         letter, colour = identity_style(entry["identity"])
         imagined.append({"identity": entry["identity"], "letter": letter, "colour": colour, "said": describe(entry)})
-    return {**plan, "frames": frames(plan["observations"]), "legend": legend(plan["manual"]), "imagined": imagined}
+    believes = believed(plan["roles"]) if plan.get("roles") else None
+    return {**plan, "frames": frames(plan["observations"]), "legend": legend(plan["manual"]), "imagined": imagined,
+            "believes": believes}  # fmt: skip
 
 
 def report_view(report: dict) -> dict:

@@ -5,7 +5,9 @@ trajectory lives, at most `max_death_share` of its sampled futures die) that rea
 `approve_return`. Otherwise it first teaches the way it was told to (`teach`: online imitation,
 labelling every state of each round, or filtered behaviour cloning, its own best plans imagined
 through the simulator), then corrects the plan's actions where the expert would act otherwise, or
-asks for another imagination when the expert would act the same. From the `max_rounds`-th plan on
+asks for another imagination when the expert would act the same. `teach="none"` neither teaches
+nor corrects: with `language`, the manual is all it gives (the agent learns from it alone), then
+it only approves, rejects or aborts. From the `max_rounds`-th plan on
 it approves a safe plan, from two plans later any plan whose trajectory lives, and it aborts
 after `max_rounds + 12` plans without one (asking again is cheap: about a second).
 
@@ -25,7 +27,7 @@ from ..messenger.spec import GameSpec
 from .agent import start_observations_like
 from .expert import expert_actions, expert_policy, role_ids
 
-TEACH = ("online_il", "filtered_bc", "corrections")
+TEACH = ("online_il", "filtered_bc", "corrections", "none")
 
 
 @dataclass
@@ -61,7 +63,7 @@ class ScriptedReviewer:
         lives = not any(r < 0 for r in plan["rewards"])
         if self.safe(plan) and plan["imagined_return"] >= self.approve_return:
             return {**base, "decision": "approve", "comment": "safe, reaches the goal"}
-        if segment not in self._taught and self.teach != "corrections":
+        if segment not in self._taught and self.teach not in ("corrections", "none"):
             self._taught.add(segment)
             if self.teach == "online_il":
                 return {**base, "decision": "imitate"}
@@ -71,10 +73,11 @@ class ScriptedReviewer:
             return {**base, "decision": "approve", "comment": f"its trajectory lives (plan {rounds} of this review)"}
         if rounds >= self.max_rounds + 12:
             return {**base, "decision": "abort", "comment": f"no plan that lives in {rounds} plans"}
-        fixes = self.corrections(plan)
+        fixes = self.corrections(plan) if self.teach != "none" else []
         if fixes:
             return {**base, "decision": "corrections", "corrections": fixes[: self.max_corrections]}
-        return {**base, "decision": "reject", "comment": "the expert would act the same; imagine again"}
+        why = "imagine again" if self.teach == "none" else "the expert would act the same; imagine again"
+        return {**base, "decision": "reject", "comment": why}
 
     def wants_to_speak(self, plan: dict) -> bool:
         """Language feedback comes first, once per review (before any decision on its plans)."""

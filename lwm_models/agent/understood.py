@@ -132,4 +132,14 @@ def describe(entry: dict) -> str:
     return f"{movement}; {role}"
 
 
-__all__ = ["describe", "read_back"]
+def believed(roles: list[dict]) -> str:
+    """The roles the agent acts on (a plan's "roles", agent/roles.py), as one sentence: what a
+    reviewer checks first, since a policy taught under a wrong role heads for the wrong entity."""
+    said = []
+    for entry in roles:
+        sure = "unsure" if entry["p"] < 0.6 else f"{entry['p']:.0%} sure"
+        said.append(f"{entry['identity']} the {entry['role']} ({sure})")
+    return "the agent acts on: " + ", ".join(said)
+
+
+__all__ = ["believed", "describe", "read_back"]

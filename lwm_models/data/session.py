@@ -32,9 +32,7 @@ class GameSession:
         self.env = MessengerEnv(games[index], pools=self.pools, split=split, max_steps=self.max_steps)
         self.obs = None
 
-    def reset(
-        self, seed: int = 0, split: str | None = None, index: int | None = None, restart: bool = False
-    ) -> dict:
+    def reset(self, seed: int = 0, split: str | None = None, index: int | None = None, restart: bool = False) -> dict:
         """A new episode; `restart`: the current one again (same seed and board) as its next attempt,
         which the planner reviews afresh."""
         if restart:

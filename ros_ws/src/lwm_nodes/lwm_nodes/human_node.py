@@ -5,8 +5,9 @@ futures, then
     a                 approve (the planner's policy then acts in the real game)
     r                 reject (the planner imagines again)
     c STEP:ACTION ... corrections, e.g. "c 1:3 2:3" (actions 0 up, 1 down, 2 left, 3 right, 4 stay)
-    i [ROUNDS]        online imitation: the planner imagines rounds of episodes and asks for labels
-    stop              end the online imitation under way (the agent keeps what it learnt, re-plans),
+    i [ROUNDS]        teach: rounds of learning in imagination, each asking you to label a few
+                      imagined states (where the agent is unsure what the manual means)
+    stop              end the teaching under way (the agent keeps what it learnt, re-plans),
                       or the execution of an approved plan (no further move; a report follows)
     l STATE:ACTION ...  label states of the current label request ("l -" sends none); one answer
                       per request, before the planner stops waiting (the request's timeout)
@@ -19,7 +20,7 @@ futures, then
 Every answer, label batch and manual gets the receiving node's answer on /lwm/acks (printed here,
 shown on the page): taken, or refused with the reason.
 Scripted (parameter scripted:=true): the paper's simulated human, the expert reading the true
-manual (lwm_models.agent.reviewer): it labels every state of each imitation round, corrects,
+manual (lwm_models.agent.reviewer): it labels every state a teaching round asks about, corrects,
 and never approves a plan whose shown trajectory dies; it prints a summary when the execution
 report arrives and exits. With language:=true its first answer in each review is language
 feedback: the true manual in other words, published on /feedback/manual (texts:= the description

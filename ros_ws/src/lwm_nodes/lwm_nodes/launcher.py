@@ -340,10 +340,10 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument(
         "--teach",
-        choices=["online_il", "filtered_bc", "corrections"],
+        choices=["online_il", "filtered_bc", "corrections", "none"],
         default="online_il",
         help="how the scripted reviewer teaches: label imagined states (online imitation), send its own plans "
-        "(filtered BC), or only correct",
+        "(filtered BC), only correct, or none (with --language: the manual is all it gives)",
     )
     parser.add_argument(
         "--texts",
