@@ -170,16 +170,16 @@ def summarize(records: list[dict], split: str) -> dict:
 def print_table(summary: dict) -> None:
     budgets = sorted({b for m in summary.values() for b in m}, key=lambda b: (b == "all", int(b) if b != "all" else 0))
     print("real return (95% t interval over games) against the labels a person was asked for, NewAll test")
-    print(f"{'model':<14}" + "".join(f"{('every state' if b == 'all' else b + ' labels'):>30}" for b in budgets))
+    print(f"{'model':<14}" + "".join(f"  {('every state' if b == 'all' else b + ' labels'):>32}" for b in budgets))
     for model, row in summary.items():
         cells = []
         for b in budgets:
             c = row.get(b)
             if c is None:
-                cells.append(f"{'-':>30}")
+                cells.append(f"  {'-':>32}")
                 continue
-            asked = "" if c["labels_asked"] is None else f" asked {c['labels_asked']:.0f}"
-            cells.append(f"{c['mean']:+.2f} ({c['low']:+.2f},{c['high']:+.2f}){asked:>9}".rjust(30))
+            asked = "" if c["labels_asked"] is None else f", asked {c['labels_asked']:.1f}"
+            cells.append("  " + f"{c['mean']:+.2f} ({c['low']:+.2f}, {c['high']:+.2f}){asked}".rjust(32))
         print(f"{model:<14}" + "".join(cells))
 
 

@@ -579,6 +579,9 @@ def start_scripted(tmp_path: Path, *extra: str) -> tuple[subprocess.Popen, dict,
         "4",
         "--futures",
         "4",
+        # The agent's self-taught plan may be approved at once; these tests need the teaching rounds.
+        "--approve-return",
+        "2",
         *extra,
     ]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
@@ -641,7 +644,8 @@ def test_every_run_in_one_checkout_starts_clean_and_resume_shows_a_finished_revi
         assert "a new run in logs/runs/" in done.stdout
         runs.append((tmp_path / "logs" / "latest").resolve())
         kinds = [r["kind"] for r in Ledger(runs[-1] / "ledger.sqlite").history()]
-        assert kinds.count("report") == 1 and kinds[:2] == ["manual", "plan"]  # reviewed from its start
+        # reviewed from its start (the agent teaches itself before its first plan)
+        assert kinds.count("report") == 1 and kinds[:4] == ["manual", "self_teaching", "policy", "plan"]
     assert runs[0] != runs[1] and runs[0].parent == runs[1].parent == tmp_path / "logs" / "runs"
     resumed = launch("--resume")
     assert resumed.returncode == 0 and "resuming the run in" in resumed.stdout, resumed.stdout[-3000:]

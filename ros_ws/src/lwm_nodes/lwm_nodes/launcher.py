@@ -346,6 +346,13 @@ def main(argv: list[str] | None = None) -> int:
         "(filtered BC), only correct, or none (with --language: the manual is all it gives)",
     )
     parser.add_argument(
+        "--approve-return",
+        type=float,
+        default=1.0,
+        help="the scripted reviewer approves at once a safe plan that imagines at least this return (a win with "
+        "the message is +1.5; above it, the reviewer always teaches first)",
+    )
+    parser.add_argument(
         "--texts",
         nargs="+",
         default=None,
@@ -419,6 +426,7 @@ def main(argv: list[str] | None = None) -> int:
     planner["constrained"] = "true" if args.constrained else "false"
     planner["constrained_learning"] = "true" if args.constrained_learning else "false"
     reviewer = {"teach": args.teach, "quiet": "false" if args.show_frames else "true", "episodes": str(args.episodes)}
+    reviewer["approve_return"] = str(args.approve_return)
     if args.language:
         reviewer.update({"language": "true", **({"texts": ",".join(args.texts)} if args.texts else {})})
     keys_file = args.keys_file if args.keys_file is not None else keys_default
