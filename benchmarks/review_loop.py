@@ -50,6 +50,7 @@ def run_game(index: int, seed: int, args, work: Path) -> dict:
     cmd += ["--index", str(index), "--seed", str(seed), "--log-dir", str(logs), "--ledger", str(ledger)]
     cmd += ["--teach", args.teach] + (["--texts", *args.texts] if args.texts else [])
     cmd += ["--language"] if args.language else []
+    cmd += ["--approve-return", str(args.approve_return)]
     cmd += ["--constrained"] if args.constrained else ["--no-constrained"]
     cmd += ["--constrained-learning"] if args.constrained_learning else []
     if args.iterations:
@@ -78,6 +79,12 @@ def run_game(index: int, seed: int, args, work: Path) -> dict:
             nxt = next((q for q in records[i + 1 :] if q["kind"] == "plan"), None)
             if nxt is not None:
                 revise.append((r["payload"]["decision"], nxt["time"] - r["time"]))
+    for i, r in enumerate(records):
+        # A batch of labels -> what the reviewer sees next: the next round's states, or the plan.
+        if r["kind"] == "labels":
+            nxt = next((q for q in records[i + 1 :] if q["kind"] in ("label_request", "plan")), None)
+            if nxt is not None:
+                revise.append((f"labels -> {nxt['kind'].replace('_', ' ')}", nxt["time"] - r["time"]))
     for said in map(float, SPOKEN.findall((logs / "human.log").read_text())):
         # From the human node's publication on /feedback/manual to the plan under the new manual.
         nxt = next((q for q in records if q["kind"] == "plan" and q["time"] > said), None)
@@ -115,6 +122,12 @@ def main() -> int:
     p.add_argument("--split", default="newall-test")
     p.add_argument("--seed", type=int, default=0, help="episode seed of every game")
     p.add_argument("--teach", default="online_il", choices=["online_il", "filtered_bc", "corrections", "none"])
+    p.add_argument(
+        "--approve-return",
+        type=float,
+        default=1.0,
+        help="the scripted reviewer approves at once a safe plan imagining this return (above 1.5: it teaches first)",
+    )
     p.add_argument(
         "--language",
         action=argparse.BooleanOptionalAction,
