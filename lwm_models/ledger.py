@@ -117,7 +117,10 @@ def headline(record: dict) -> str:
         roles = ", ".join(f"{e['identity']} {e['role']} ({e['p']:.0%})" for e in p["roles"])
         what = f"taught itself from the manual: {p['rounds']} rounds, {p['self_labelled']} states; roles: {roles}"
     elif record["kind"] == "policy":
-        what = f"policy saved after feedback #{p.get('after')}: {p['labelled']} labelled states ({p['path']})"
+        what = (
+            f"policy saved after record #{p.get('after')}: {p['labelled']} state(s) labelled by a reviewer "
+            f"({p['path']})"
+        )
     else:
         what = (
             f"executed plan {p['plan_id']}: real return {p['real_return']:+.2f} "
