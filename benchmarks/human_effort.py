@@ -136,6 +136,11 @@ def every_state(model: str, games: set[int], split: str) -> list[float]:
 def summarize(records: list[dict], split: str) -> dict:
     from lwm_models.stats import mean_interval
 
+    # Only the games every model and budget has a record of: each cell is over the same games.
+    cells = {(r["model"], r["budget"]) for r in records}
+    complete = {g for g in {r["game"] for r in records} if all(
+        any(r["game"] == g and (r["model"], r["budget"]) == c for r in records) for c in cells)}  # fmt: skip
+    records = [r for r in records if r["game"] in complete]
     out: dict[str, dict] = {}
     for model in sorted({r["model"] for r in records}):
         mine = [r for r in records if r["model"] == model]

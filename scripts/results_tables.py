@@ -284,7 +284,33 @@ def load(base: str) -> list[str]:
     return lines
 
 
+def effort(base: str) -> list[str]:
+    """Real return against the labels a person was asked for (benchmarks/human_effort.py)."""
+    path = "human_effort/summary.json"
+    summary = _load(path)
+    budgets = sorted({b for row in summary.values() for b in row if b != "all"}, key=int)
+    head = " | ".join("manual only, 0 labels" if b == "0" else f"at most {b} labels" for b in budgets)
+    lines = [f"| world model | {head} | every imagined state labelled (Table 3) |", "|---" * (len(budgets) + 2) + "|"]
+    for kind, name in (("emma", "EMMA-LWM"), ("observational", "Observational")):
+        row = summary.get(kind)
+        if row is None:
+            continue
+        cells = []
+        for b in [*budgets, "all"]:
+            c = row.get(b)
+            if c is None:
+                cells.append("not measured")
+                continue
+            asked = "" if c["labels_asked"] is None else f"; {c['labels_asked']:.1f} asked"
+            cells.append(f"{c['mean']:+.2f} ({c['low']:+.2f}, {c['high']:+.2f}){asked}")
+        games = row[budgets[0]]["games"]
+        lines.append(f"| {name} ({games} games) | " + " | ".join(cells) + " |")
+    lines.append(f"\nMean real return over the games (95% t interval), 48 real episodes per game; {_link(path, base)}.")
+    return lines
+
+
 TABLES: dict[str, Callable[[str], list[str]]] = {
+    "effort": effort,
     "summary": summary,
     "table1": table1,
     "table2": table2,
