@@ -26,6 +26,7 @@ def test_every_payload_of_the_system_has_a_schema():
         "labels",
         "manual",
         "plan",
+        "progress",
         "review_feedback",
         "state",
         "status",

@@ -154,6 +154,7 @@ class LoopHarness:
         self.plans: list[dict] = []
         self.requests: list[dict] = []
         self.reports: list[dict] = []
+        self.progress: list[dict] = []
         self.changed = threading.Condition()
         ports = Ports(
             self._add("plan", self.plans),
@@ -162,6 +163,7 @@ class LoopHarness:
             lambda p: self.session.reset(p["seed"]),
             step or (lambda p: self.session.step(p["action"])),
             log=lambda s: None,
+            publish_progress=self._add("progress", self.progress),
         )
         teaching = Teaching(rounds=budget.iterations, episodes=budget.episodes, grad_steps=budget.grad_steps)
         config = ReviewConfig(futures=2, budget=budget, teaching=teaching, label_timeout=30, max_rereviews=0)
@@ -233,6 +235,10 @@ def test_review_loop_manual_labels_and_closed_loop_execution(encoder):
     h.loop.on_state(state)
     first = h.wait(h.plans, 1)
     assert first["manual_version"] == 1 and first["reason"] == "start"
+    # Before the plan, the agent taught itself from the manual, and said so round by round.
+    assert [(g["round"], g["done"]) for g in h.progress] == [(0, False), (1, False), (1, True)], h.progress
+    assert h.progress[-1]["manual_version"] == 1 and len(h.progress[-1]["roles"]) == 3
+    assert first["roles"] == h.progress[-1]["roles"]
 
     # Language feedback reaches the plan under review: a new version re-plans under it.
     sim.set_manual(MANUAL, "human")

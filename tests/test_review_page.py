@@ -189,6 +189,9 @@ def test_review_in_the_browser(unnamed_page_system, browser):
     box.send_keys("the airplane is a deadly enemy that chases you.")
     browser.find_element("id", "send-manual").click()
     wait.until(lambda _: "manual v2" in title())
+    # The agent taught itself from the new manual before this plan, and the page followed it.
+    learnt = browser.find_element("id", "progress").text
+    assert learnt.startswith("the agent learnt from manual v2 in ") and "(2 rounds" in learnt, learnt
     legend = browser.find_element("id", "legend").text
     assert "airplane: enemy, chaser" in legend
     shoot(browser, tmp_path, "review_page_new_manual.png")

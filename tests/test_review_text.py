@@ -46,3 +46,18 @@ def test_the_roles_the_agent_acts_on_are_said_on_the_terminal_and_the_page():
     ]
     said = "the agent acts on: airplane the enemy (91% sure), ball the message (unsure), robot the goal (91% sure)"
     assert said in plan_text(plan) and plan_view(plan)["believes"] == said
+
+
+def test_the_agent_learning_from_a_manual_is_said_in_a_line():
+    from lwm_models.agent.review_text import progress_text
+
+    progress = messages.schema("progress")["examples"][0]
+    assert progress_text(progress) == (
+        "the agent is learning from manual v2 in imagination: round 3 of 10 (6 s); its plan follows"
+    )
+    roles = [{"id": 2, "identity": "airplane", "role": "enemy", "p": 0.9}]
+    done = {**progress, "round": 10, "seconds": 19.6, "done": True, "roles": roles}
+    messages.validate("progress", done)
+    assert progress_text(done) == (
+        "the agent learnt from manual v2 in 20 s (10 rounds); the agent acts on: airplane the enemy (90% sure)"
+    )

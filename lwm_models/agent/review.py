@@ -103,6 +103,8 @@ class Ports:
     env_reset: Callable[[dict], dict]
     env_step: Callable[[dict], dict]
     log: Callable[[str], None] = print
+    # while the agent teaches itself, each round (a progress payload): a person waits for the plan
+    publish_progress: Callable[[dict], None] = lambda payload: None
 
 
 @dataclass
@@ -455,14 +457,33 @@ class ReviewLoop:
     def _teach_self(self, r: Review, fresh: bool) -> None:
         """Learn from the manual alone, asking nobody, before the plan is shown."""
         began = time.perf_counter()
+        rounds = self.config.teaching.rounds
+
+        def progress(round_no: int, done: bool = False, **more) -> None:
+            self.ports.publish_progress(
+                {
+                    "review_id": r.review_id,
+                    "phase": "self_teaching",
+                    "manual_version": self.manual_version,
+                    "round": round_no,
+                    "rounds": rounds,
+                    "seconds": round(time.perf_counter() - began, 2),
+                    "done": done,
+                    **more,
+                }
+            )
+
+        progress(0)
         result = r.agent.teach_self(
             self._starts(r),
             self.config.teaching,
             seed=r.seed * 1000 + r.plans,
             should_stop=lambda: self.closing.is_set() or self.review is not r,
+            on_round=lambda round_no, _: progress(round_no),
             fresh=fresh,
         )
         summary = result.summary()
+        progress(result.rounds, done=True, roles=result.belief.describe())
         record = self.ledger.record(r.review_id, "self_teaching", summary)
         self._save_policy(r, record)
         roles = ", ".join(f"{e['identity']} {e['role']} ({e['p']:.0%})" for e in summary["roles"])

@@ -41,6 +41,18 @@ def outcome(plan: dict) -> str:
     return f"runs {len(plan['actions'])} steps without an end"
 
 
+def progress_text(progress: dict) -> str:
+    """The agent teaching itself from a manual, in a line: what it does and how far it is."""
+    manual = f"manual v{progress['manual_version']}" if "manual_version" in progress else "the manual"
+    if not progress["done"]:
+        return (
+            f"the agent is learning from {manual} in imagination: round {progress['round']} of "
+            f"{progress['rounds']} ({progress['seconds']:.0f} s); its plan follows"
+        )
+    roles = f"; {believed(progress['roles'])}" if progress.get("roles") else ""
+    return f"the agent learnt from {manual} in {progress['seconds']:.0f} s ({progress['round']} rounds){roles}"
+
+
 def plan_text(plan: dict, frames: str = "ends") -> str:
     """A plan for a terminal. frames: 'ends' (the start and the last board), 'all' or 'none'."""
     f = plan["futures"]

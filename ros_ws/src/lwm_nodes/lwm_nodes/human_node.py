@@ -53,7 +53,7 @@ from std_msgs.msg import String
 from lwm_models import messages
 from lwm_models.agent.imaginer import ServiceImaginer
 from lwm_models.agent.review import check_labels
-from lwm_models.agent.review_text import plan_text, state_text
+from lwm_models.agent.review_text import plan_text, progress_text, state_text
 from lwm_models.agent.review_view import history_view, label_request_view, plan_view, report_view
 from lwm_models.agent.reviewer import ScriptedReviewer
 from lwm_models.data.episode import Episode
@@ -128,6 +128,7 @@ class HumanNode(JsonNode):
         self.json_subscription("/planner/plan", "plan", self.on_plan, LATCHED)
         self.json_subscription("/planner/label_request", "label_request", self.on_label_request, LATCHED)
         self.json_subscription("/planner/report", "execution_report", self.on_report, LATCHED)
+        self.json_subscription("/planner/progress", "progress", self.on_progress, LATCHED)
         self.page = None
         if port and not self.scripted:
             self.page = ReviewPage(
@@ -240,6 +241,14 @@ class HumanNode(JsonNode):
             self.reviewer = ScriptedReviewer(
                 game, self.teach, self.approve_return, self.max_death_share, self.max_rounds, language=self.language
             )
+
+    def on_progress(self, progress: dict) -> None:
+        """The agent learns from a manual before its plan: the page shows each round; the terminal
+        says when it starts and ends (a line a round would bury the plan)."""
+        if self.page is not None:
+            self.page.push("progress", progress)
+        elif not self.scripted and (progress["round"] == 0 or progress["done"]):
+            print(progress_text(progress), flush=True)
 
     def on_plan(self, plan: dict) -> None:
         if (

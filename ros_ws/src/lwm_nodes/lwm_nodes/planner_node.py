@@ -60,7 +60,7 @@ class PlannerNode(JsonNode):
         )
         imagine = self.create_client(Json, "/lwm/imagine")
         # Plans and futures (what a person sees) imagined under the game's rules, or the model's raw
-        # samples: with the rules the scripted reviews returned +1.05 against +0.85 (README).
+        # samples: with the rules the scripted reviews returned +1.05 against +0.85 (docs/benchmarks.md).
         constrained = bool(p("constrained", True).value)
         self.imaginer = ServiceImaginer(
             json_caller(self, imagine, "imagine_response", call_timeout), constrained=constrained
@@ -74,6 +74,7 @@ class PlannerNode(JsonNode):
             ),
             env_step=self._env(json_caller(self, self.create_client(Json, "/env/step"), "env_response", call_timeout)),
             log=self.get_logger().info,
+            publish_progress=self.json_publisher("/planner/progress", "progress", LATCHED),
         )
         # The text model loads now, not on the first uncached description of a language feedback.
         encoder = FrozenTextEncoder().load()

@@ -2,8 +2,9 @@
 
 Standard library only (http.server): the page (web/review.html, plain JavaScript, no build step),
 a snapshot of what is under review (GET /api/state), live updates as server-sent events (GET
-/api/events: plan, label_request, report, status; a page that connects, or reconnects after a
-node restart, gets what is shown now first, "no label request" included), the review history from the ledger (GET
+/api/events: plan, label_request, report, status, reviewer, progress; a page that connects, or
+reconnects after a node restart, gets what is shown now first, "no label request" included), the
+review history from the ledger (GET
 /api/history, /api/history?review=ID; the node reads the ledger read-only), and the person's
 answers (POST /api/feedback, /api/labels, /api/manual), which the node signs and publishes, the
 next episode or this one again (POST /api/episode), and who is reviewing (GET and POST
@@ -37,7 +38,7 @@ class ReviewPage:
     body of a POST and return the receiving node's words (shown beside the control), or raise to
     refuse it (the page shows the reason); history(review_id or None) answers GET /api/history."""
 
-    KINDS = ("plan", "label_request", "report", "status", "reviewer")
+    KINDS = ("plan", "label_request", "report", "status", "reviewer", "progress")
     # Sent to a (re)connecting page even when there is none: the page may still show a request that
     # ended while it was away (the node restarted, the planner moved on), and would keep asking the
     # person for labels nobody takes. A plan or report the node has not (yet) had is left as shown.
