@@ -201,6 +201,30 @@ def start_observations(game: GameSpec, seed: int = 0) -> np.ndarray:
     return engine.compact_observation()
 
 
+def imagine_round(
+    policy: EmmaPolicy,
+    imaginer,
+    manual: ManualBatch,
+    starts: np.ndarray,
+    episodes: int,
+    rng: np.random.Generator,
+    gen: torch.Generator,
+    seed: int,
+    max_steps: int = 32,
+    constrained: bool = False,
+) -> Imagination:
+    """One round of learning in imagination: `episodes` trajectories of `policy` (sampling with
+    `gen`) through `imaginer`, from starts [k, 4, 3] drawn with `rng`."""
+    with torch.no_grad():
+        id_values = policy.id_values(manual).expand(episodes, -1, -1)
+
+    def learner(obs: np.ndarray, idx: np.ndarray, t: int) -> np.ndarray:
+        return act(policy, stack_history(obs), id_values[: len(idx)], sample=True, generator=gen)
+
+    chosen = starts[rng.integers(len(starts), size=episodes)]
+    return imaginer.rollout(chosen, learner, n=episodes, max_steps=max_steps, seed=seed, constrained=constrained)
+
+
 def imagined_states(im: Imagination, max_steps: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Every state with a next action in imagined trajectories, step by step: histories
     [m, 3, 4, 3], observations [m, 4, 3], their step index (0 = the start) and trajectory."""
@@ -353,21 +377,11 @@ def online_imitation(
             if should_stop():
                 break
             manual = policy_manual() if callable(policy_manual) else policy_manual
-            with torch.no_grad():
-                id_values = acting.id_values(manual).expand(budget.episodes, -1, -1)
-
-            def learner(obs: np.ndarray, idx: np.ndarray, t: int, id_values=id_values) -> np.ndarray:
-                return act(acting, stack_history(obs), id_values[: len(idx)], sample=True, generator=gen)
-
             began = time.perf_counter()
-            im = imaginer.rollout(
-                starts[rng.integers(len(starts), size=budget.episodes)],
-                learner,
-                n=budget.episodes,
-                max_steps=max_steps,
-                seed=seed * 10_000 + u,
-                constrained=budget.constrained,
-            )
+            im = imagine_round(
+                acting, imaginer, manual, starts, budget.episodes, rng, gen, seed * 10_000 + u, max_steps,
+                budget.constrained,
+            )  # fmt: skip
             spend("imagine", began)
             if pool is None:
                 learn(im, u, manual)

@@ -28,8 +28,8 @@ import numpy as np
 import torch
 
 from ..world.base import ManualBatch
-from .learning import fit_labels, imagined_states
-from .policy import EmmaPolicy, act, stack_history
+from .learning import fit_labels, imagine_round, imagined_states
+from .policy import EmmaPolicy
 from .roles import RoleBelief, believe
 
 Ask = Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int], np.ndarray]
@@ -167,20 +167,9 @@ def teach(
         if should_stop():
             break
         manual = policy_manual() if callable(policy_manual) else policy_manual
-        with torch.no_grad():
-            id_values = policy.id_values(manual).expand(config.episodes, -1, -1)
-
-        def learner(obs: np.ndarray, idx: np.ndarray, t: int, id_values=id_values) -> np.ndarray:
-            return act(policy, stack_history(obs), id_values[: len(idx)], sample=True, generator=gen)
-
         began = time.perf_counter()
-        im = imaginer.rollout(
-            starts[rng.integers(len(starts), size=config.episodes)],
-            learner,
-            n=config.episodes,
-            max_steps=32,
-            seed=seed * 10_000 + u,
-            constrained=config.constrained,
+        im = imagine_round(
+            policy, imaginer, manual, starts, config.episodes, rng, gen, seed * 10_000 + u, 32, config.constrained
         )
         hist, obs, steps, traj = imagined_states(im, 32)
         began = spend("imagine", began)
