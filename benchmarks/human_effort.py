@@ -138,8 +138,8 @@ def summarize(records: list[dict], split: str) -> dict:
 
     # Only the games every model and budget has a record of: each cell is over the same games.
     cells = {(r["model"], r["budget"]) for r in records}
-    complete = {g for g in {r["game"] for r in records} if all(
-        any(r["game"] == g and (r["model"], r["budget"]) == c for r in records) for c in cells)}  # fmt: skip
+    have = {(r["game"], r["model"], r["budget"]) for r in records}
+    complete = {g for g, _, _ in have if all((g, *c) in have for c in cells)}
     records = [r for r in records if r["game"] in complete]
     out: dict[str, dict] = {}
     for model in sorted({r["model"] for r in records}):

@@ -76,15 +76,15 @@ def run_game(index: int, seed: int, args, work: Path) -> dict:
     revise = []  # (feedback kind, seconds from the feedback's record to the next plan's)
     for i, r in enumerate(records):
         if r["kind"] == "feedback" and r["payload"]["decision"] not in ("approve", "abort"):
-            nxt = next((q for q in records[i + 1 :] if q["kind"] == "plan"), None)
-            if nxt is not None:
-                revise.append((r["payload"]["decision"], nxt["time"] - r["time"]))
-    for i, r in enumerate(records):
-        # A batch of labels -> what the reviewer sees next: the next round's states, or the plan.
-        if r["kind"] == "labels":
-            nxt = next((q for q in records[i + 1 :] if q["kind"] in ("label_request", "plan")), None)
-            if nxt is not None:
-                revise.append((f"labels -> {nxt['kind'].replace('_', ' ')}", nxt["time"] - r["time"]))
+            kind, seen = r["payload"]["decision"], ("plan",)
+        elif r["kind"] == "labels":  # what the reviewer sees next: the next round's states, or the plan
+            kind, seen = "labels", ("label_request", "plan")
+        else:
+            continue
+        nxt = next((q for q in records[i + 1 :] if q["kind"] in seen), None)
+        if nxt is not None:
+            said = kind if kind != "labels" else f"labels -> {nxt['kind'].replace('_', ' ')}"
+            revise.append((said, nxt["time"] - r["time"]))
     for said in map(float, SPOKEN.findall((logs / "human.log").read_text())):
         # From the human node's publication on /feedback/manual to the plan under the new manual.
         nxt = next((q for q in records if q["kind"] == "plan" and q["time"] > said), None)

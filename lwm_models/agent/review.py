@@ -483,7 +483,7 @@ class ReviewLoop:
             fresh=fresh,
         )
         summary = result.summary()
-        progress(result.rounds, done=True, roles=result.belief.describe())
+        progress(result.rounds, done=True, roles=summary["roles"])
         record = self.ledger.record(r.review_id, "self_teaching", summary)
         self._save_policy(r, record)
         roles = ", ".join(f"{e['identity']} {e['role']} ({e['p']:.0%})" for e in summary["roles"])

@@ -15,6 +15,7 @@ import numpy as np
 from ..ledger import headline
 from ..messenger.render import board, identity_style
 from ..text.parser import parse_description
+from .review_text import progress_text
 from .understood import believed, describe
 
 
@@ -50,6 +51,11 @@ def plan_view(plan: dict) -> dict:
     believes = believed(plan["roles"]) if plan.get("roles") else None
     return {**plan, "frames": frames(plan["observations"]), "legend": legend(plan["manual"]), "imagined": imagined,
             "believes": believes}  # fmt: skip
+
+
+def progress_view(progress: dict) -> dict:
+    """A progress message with the line the terminal prints, so the page says the same."""
+    return {**progress, "text": progress_text(progress)}
 
 
 def report_view(report: dict) -> dict:
@@ -97,4 +103,4 @@ def history_view(records: Sequence[dict]) -> list[dict]:
     return out
 
 
-__all__ = ["frames", "history_view", "label_request_view", "legend", "plan_view", "report_view"]
+__all__ = ["frames", "history_view", "label_request_view", "legend", "plan_view", "progress_view", "report_view"]

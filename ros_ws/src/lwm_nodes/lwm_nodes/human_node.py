@@ -54,7 +54,7 @@ from lwm_models import messages
 from lwm_models.agent.imaginer import ServiceImaginer
 from lwm_models.agent.review import check_labels
 from lwm_models.agent.review_text import plan_text, progress_text, state_text
-from lwm_models.agent.review_view import history_view, label_request_view, plan_view, report_view
+from lwm_models.agent.review_view import history_view, label_request_view, plan_view, progress_view, report_view
 from lwm_models.agent.reviewer import ScriptedReviewer
 from lwm_models.data.episode import Episode
 from lwm_models.data.splits import load_split
@@ -246,7 +246,7 @@ class HumanNode(JsonNode):
         """The agent learns from a manual before its plan: the page shows each round; the terminal
         says when it starts and ends (a line a round would bury the plan)."""
         if self.page is not None:
-            self.page.push("progress", progress)
+            self.page.push("progress", progress_view(progress))
         elif not self.scripted and (progress["round"] == 0 or progress["done"]):
             print(progress_text(progress), flush=True)
 
