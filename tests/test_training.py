@@ -114,6 +114,58 @@ def test_decoder_overrides_reach_the_model(tiny_data, tmp_path):
     assert config["config"]["decoder"]["kv_heads"] == 1 and config["config"]["decoder"]["attn_dropout"] == 0.0
 
 
+def test_mixed_manuals_replace_descriptions_by_their_own_triple_s(tiny_data):
+    data = SplitTokens(tiny_data, "train")
+    own = list(data.texts)
+    from lwm_models.messenger.constants import ALL_TRIPLES
+
+    triples = [ALL_TRIPLES[i] for i in np.unique(np.asarray(data.ds.parses))]
+    other = {t: [f"{t[0]} that {t[1]} is {t[2]} #{k}" for k in range(3)] for t in triples}
+    data.mix_manuals(other, 0.5, encoder=None)
+    rng = np.random.default_rng(0)
+    swapped = kept = 0
+    for _ in range(30):
+        episodes, _starts = data._draw(rng, 8)
+        ids = data._mixed_text_ids(rng, episodes)
+        for e, row in zip(episodes, ids):
+            for k, text_id in enumerate(row):
+                if text_id == data.manuals[e, k]:
+                    kept += 1
+                else:
+                    swapped += 1
+                    assert data.texts[text_id] in other[ALL_TRIPLES[int(data.ds.parses[e][k])]]
+    assert 0.35 < swapped / (swapped + kept) < 0.65
+    assert data.texts[: len(own)] == own  # the dataset's texts keep their ids
+
+
+def test_fine_tuning_starts_from_a_checkpoint_and_reads_longer_text(tiny_data, tmp_path):
+    base = tmp_path / "base"
+    train(args(tiny_data, base, kind="emma", steps=2, eval_every=2))
+    start, _ = load_checkpoint(base / "last")
+    tuned = tmp_path / "tuned"
+    train(
+        args(
+            tiny_data,
+            tuned,
+            kind="emma",
+            steps=1,
+            eval_every=1,
+            lr=1e-9,
+            init=str(base / "last"),
+            max_tokens=48,
+            manual_mix=0.5,
+            mix_per_style=2,
+        )
+    )
+    model, config = load_checkpoint(tuned / "last")
+    assert config["config"]["text"]["max_tokens"] == 48 and model.frozen_text_encoder().max_tokens == 48
+    for (name, p), q in zip(model.named_parameters(), start.parameters()):
+        assert torch.allclose(p, q, atol=1e-4), name  # one step at lr 1e-9 from the initial weights
+    dev = [json.loads(line) for line in (tuned / "metrics.jsonl").read_text().splitlines() if "dev_total" in line]
+    assert dev[-1]["dev_mixed_total"] > 0
+    assert dev[-1]["dev_selection"] == pytest.approx((dev[-1]["dev_total"] + dev[-1]["dev_mixed_total"]) / 2)
+
+
 def test_resume_refuses_another_model(tiny_data, tmp_path):
     train(args(tiny_data, tmp_path / "run", steps=2, eval_every=2))
     with pytest.raises(Exception, match="observational"):

@@ -30,7 +30,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def _dataset_dir(text: str) -> str:
-    return str(existing_dir(text))  # TrainArgs keeps paths as text: they are recorded in JSON
+    """An existing directory (a dataset or a checkpoint), kept as text: TrainArgs is recorded in JSON."""
+    return str(existing_dir(text))
 
 
 def add_arguments(p: LwmParser) -> None:
@@ -52,12 +53,16 @@ def add_arguments(p: LwmParser) -> None:
         "kv_heads": positive_int,
         "threads": positive_int,
         "parts": positive_int,
+        "max_tokens": positive_int,
+        "manual_mix": fraction,
+        "mix_per_style": positive_int,
         "max_minutes": positive_float,
         "cpu_budget_minutes": positive_float,
     }
     extra = {name: {"type": check} for name, check in checks.items()}
     extra["data"] = {"type": _dataset_dir, "metavar": "DIR"}
     extra["out"] = {"metavar": "RUN"}
+    extra["init"] = {"type": _dataset_dir, "metavar": "CHECKPOINT"}
     extra["kind"] = {"choices": list(KINDS)}
     extra["preset"] = {"choices": list(PRESETS)}
     extra["eval_split"] = {"choices": list(SPLITS), "metavar": "SPLIT"}

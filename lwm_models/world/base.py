@@ -136,10 +136,10 @@ class WorldModel(nn.Module):
         self.apply(init_weights)
 
     # ------------------------------------------------------------------ the manual
-    @classmethod
-    def frozen_text_encoder(cls) -> FrozenTextEncoder | None:
-        """The frozen encoder this kind's manuals go through, or None if it reads no text."""
-        return FrozenTextEncoder() if cls.reads_text else None
+    def frozen_text_encoder(self) -> FrozenTextEncoder | None:
+        """The frozen encoder this model's manuals go through (keeping its `max_tokens`), or None
+        if it reads no text."""
+        return FrozenTextEncoder(max_tokens=self.config.text.max_tokens) if self.reads_text else None
 
     @classmethod
     def read_manual(

@@ -7,14 +7,14 @@ batch is only slicing and stacking.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
 import torch
 
 from ..data.dataset import TrajectoryDataset
-from ..messenger.constants import ALL_TRIPLES, IDENTITIES, MOVEMENTS, ROLES
+from ..messenger.constants import ALL_TRIPLES, IDENTITIES, MOVEMENTS, ROLES, Triple
 from .base import ManualBatch
 from .frozen_text import FrozenTextEncoder
 from .tokens import BLOCK, DUMMY_ACTION, FIRST_REWARD_LABEL, OBS_TOKENS, obs_to_tokens, reward_label
@@ -72,12 +72,53 @@ class SplitTokens:
             self.text_lengths = torch.from_numpy(lengths)
         self.router = router
         self.routed = None if router is None else np.array([router(t) for t in self.texts], dtype=np.int64)
+        self.mix_prob = 0.0
+        self.mix_ids = np.zeros((len(ALL_TRIPLES), 0), dtype=np.int64)  # [triple, candidate] text ids
+        self.mix_counts = np.zeros(len(ALL_TRIPLES), dtype=np.int64)
 
     def __len__(self) -> int:
         return len(self.lengths)
 
-    def manual_batch(self, episodes: np.ndarray) -> ManualBatch:
-        text_ids = self.manuals[episodes]  # [B, 3]
+    def _add_texts(self, texts: list[str], encoder: FrozenTextEncoder | None) -> None:
+        self.texts.extend(texts)
+        if self.router is not None:
+            extra = np.array([self.router(t) for t in texts], dtype=np.int64)
+            self.routed = np.concatenate([self.routed, extra])
+        if encoder is not None and self.features is not None:
+            feats, lengths = encoder.encode_arrays(texts)
+            self.features = torch.cat([self.features, torch.from_numpy(feats)])
+            self.text_lengths = torch.cat([self.text_lengths, torch.from_numpy(lengths)])
+
+    def mix_manuals(
+        self, texts_by_triple: Mapping[Triple, Sequence[str]], prob: float, encoder: FrozenTextEncoder | None
+    ) -> None:
+        """Training manuals in other words: `sample` and `sample_parts` replace each description,
+        with probability `prob`, by one of `texts_by_triple[its triple]` (uniformly). A model that
+        only ever sees one style of writing learns that style, not the language (docs/language.md).
+        Triples without texts keep their description; evaluation (`full_episodes`) is unchanged."""
+        new = sorted({t for texts in texts_by_triple.values() for t in texts} - set(self.texts))
+        self._add_texts(new, encoder)
+        index = {t: i for i, t in enumerate(self.texts)}
+        by_triple = [[index[t] for t in dict.fromkeys(texts_by_triple.get(triple, ()))] for triple in ALL_TRIPLES]
+        self.mix_counts = np.array([len(ids) for ids in by_triple], dtype=np.int64)
+        self.mix_ids = np.zeros((len(ALL_TRIPLES), max(1, int(self.mix_counts.max()))), dtype=np.int64)
+        for k, ids in enumerate(by_triple):
+            self.mix_ids[k, : len(ids)] = ids
+        self.mix_prob = float(prob)
+
+    def _mixed_text_ids(self, rng: np.random.Generator, episodes: np.ndarray) -> np.ndarray:
+        text_ids = self.manuals[episodes].copy()  # [B, 3]
+        if self.mix_prob <= 0:
+            return text_ids
+        triples = np.asarray(self.ds.parses, dtype=np.int64)[episodes]
+        counts = self.mix_counts[triples]
+        pick = (rng.random(text_ids.shape) * np.maximum(counts, 1)).astype(np.int64)
+        swap = (rng.random(text_ids.shape) < self.mix_prob) & (counts > 0)
+        return np.where(swap, self.mix_ids[triples, pick], text_ids)
+
+    def manual_batch(self, episodes: np.ndarray, text_ids: np.ndarray | None = None) -> ManualBatch:
+        """The manuals of `episodes` (their own descriptions, or `text_ids` [B, 3] in their place)."""
+        text_ids = self.manuals[episodes] if text_ids is None else text_ids  # [B, 3]
         features = mask = routed = None
         if self.features is not None:
             idx = torch.from_numpy(text_ids)
@@ -108,7 +149,7 @@ class SplitTokens:
         """Segments that start at a random step of random episodes: the paper's training batches."""
         episodes, starts = self._draw(rng, batch)
         tokens, lengths = self.segments(episodes, starts)
-        return tokens, lengths, self.manual_batch(episodes)
+        return tokens, lengths, self.manual_batch(episodes, self._mixed_text_ids(rng, episodes))
 
     def sample_parts(
         self, rng: np.random.Generator, batch: int, parts: int
@@ -118,11 +159,12 @@ class SplitTokens:
         step to the episode's end, so one batch padded to its longest is about two thirds padding
         (measured on the training split: 36% of the padded blocks are real; 75% in 4 parts)."""
         episodes, starts = self._draw(rng, batch)
+        text_ids = self._mixed_text_ids(rng, episodes)
         order = np.argsort(self.lengths[episodes] - starts, kind="stable")
         out = []
         for part in np.array_split(order, min(parts, batch)):
             tokens, lengths = self.segments(episodes[part], starts[part])
-            out.append((tokens, lengths, self.manual_batch(episodes[part])))
+            out.append((tokens, lengths, self.manual_batch(episodes[part], text_ids[part])))
         return out
 
     def evaluated_episodes(self, limit: int | None = None) -> np.ndarray:

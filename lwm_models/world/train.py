@@ -20,7 +20,7 @@ import json
 import math
 import os
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -30,8 +30,11 @@ from safetensors.torch import load_file, save_file
 from torch import nn
 
 from ..errors import LwmError
+from ..messenger.constants import ALL_TRIPLES
+from ..text.free_form import training_texts
+from ..text.pools import DescriptionPools
 from .base import LossOutput, WorldModel
-from .batches import SplitTokens
+from .batches import SplitTokens, redraw_manuals
 from .checkpoint import load_checkpoint, publish, recover, save_checkpoint, write_checkpoint
 from .registry import PRESETS, build_model
 
@@ -76,6 +79,25 @@ class TrainArgs:
         metadata={
             "help": "key/value heads (default: the preset's, small: 1, multi-query); as many as heads: multi-head"
         },
+    )
+    init: str | None = field(
+        default=None,
+        metadata={"help": "start from this checkpoint's weights (fine-tuning; a resumed run ignores it)"},
+    )
+    max_tokens: int | None = field(
+        default=None,
+        metadata={"help": "encoder tokens kept per description (default: the preset's or --init's, paper 36)"},
+    )
+    manual_mix: float = field(
+        default=0.0,
+        metadata={
+            "help": "probability that a training description is replaced by another of its triple: generated or "
+            "free-form (lwm_models/text/free_form.py, never the stress set's held-out bank); the best checkpoint "
+            "is then chosen on the mean of the dev loss with the dataset's text and with such text"
+        },
+    )
+    mix_per_style: int = field(
+        default=12, metadata={"help": "free-form descriptions per style and triple in the --manual-mix pool"}
     )
     threads: int | None = field(default=None, metadata={"help": "torch threads (default: PyTorch's)"})
     tensorboard: bool = field(default=False, metadata={"help": "also write TensorBoard logs to RUN/tb"})
@@ -137,6 +159,20 @@ def _save_train_state(
         "torch_rng": torch.get_rng_state().tolist(),
     }
     (path / "train_state.json").write_text(json.dumps(state))
+
+
+def _split_triples(data: SplitTokens) -> list:
+    return [ALL_TRIPLES[i] for i in np.unique(np.asarray(data.ds.parses))]
+
+
+def _mix_texts(data: SplitTokens, args: TrainArgs) -> dict:
+    return training_texts(_split_triples(data), per_style=args.mix_per_style, seed=args.seed)
+
+
+def _mix_pools(data: SplitTokens, args: TrainArgs) -> DescriptionPools:
+    """The dev split's manuals re-drawn from the training mix's kind of text (for its own triples)."""
+    texts = _mix_texts(data, args)
+    return DescriptionPools({data.split: {t: tuple(v) for t, v in texts.items()}}, "manual-mix")
 
 
 def _cut_metrics(path: Path, step: int) -> None:
@@ -230,15 +266,25 @@ def train(args: TrainArgs, log=print) -> dict:
         model, saved = load_checkpoint(last, kind=args.kind)
         if saved.get("preset") != args.preset:
             raise LwmError(f"{last} was trained with preset {saved.get('preset')!r}, not {args.preset!r}")
+    elif args.init:
+        model, _ = load_checkpoint(args.init, kind=args.kind)
     else:
         torch.manual_seed(args.seed)
         model = build_model(args.kind, config)
+    if args.max_tokens is not None:
+        model.config = replace(model.config, text=replace(model.config.text, max_tokens=args.max_tokens))
     model.train()
 
     encoder = model.frozen_text_encoder()
     router = model.route
     train_data = SplitTokens(args.data, "train", encoder, router)
     dev_data = SplitTokens(args.data, args.eval_split, encoder, router) if rank == 0 else None
+    dev_mixed = None
+    if args.manual_mix > 0:
+        train_data.mix_manuals(_mix_texts(train_data, args), args.manual_mix, encoder)
+        if rank == 0:
+            dev_mixed = SplitTokens(args.data, args.eval_split, encoder, router)
+            redraw_manuals(dev_mixed, _mix_pools(dev_mixed, args), encoder, seed=args.seed)
 
     optimizer = torch.optim.AdamW(_param_groups(model, args.weight_decay), lr=args.lr, betas=(0.9, 0.999))
     rng = np.random.default_rng([args.seed, rank])
@@ -292,8 +338,8 @@ def train(args: TrainArgs, log=print) -> dict:
         extra = {**meta, "steps": step, "seed": args.seed}
         if dev is not None:
             extra["dev"] = {args.eval_split: dev}
-            if dev["total"] < best:
-                best = dev["total"]
+            if dev.get("selection", dev["total"]) < best:
+                best = dev.get("selection", dev["total"])
                 save_checkpoint(model, best_dir, extra)
 
         # Weights and optimizer state must come from the same step, even if the process is killed
@@ -368,6 +414,10 @@ def train(args: TrainArgs, log=print) -> dict:
                 eval_began = time.perf_counter()
                 began_at = elapsed()
                 dev = evaluate_loss(model, dev_data, limit=args.eval_episodes, bf16=args.bf16)
+                if dev_mixed is not None:
+                    mixed = evaluate_loss(model, dev_mixed, limit=args.eval_episodes, bf16=args.bf16)
+                    dev["mixed_total"] = mixed["total"]
+                    dev["selection"] = (dev["total"] + mixed["total"]) / 2
                 record(
                     {
                         "step": step,
@@ -380,7 +430,8 @@ def train(args: TrainArgs, log=print) -> dict:
                     }
                 )
                 if bar:
-                    bar.write(f"step {step}: {args.eval_split} total {dev['total']:.4f} (obs {dev['obs']:.4f})")
+                    mixed = f", other words {dev['mixed_total']:.4f}" if "mixed_total" in dev else ""
+                    bar.write(f"step {step}: {args.eval_split} total {dev['total']:.4f} (obs {dev['obs']:.4f}){mixed}")
             checkpoint(dev)
         if out_of_time:
             stop_reason = "CPU budget" if budget_spent else "chunk time"
