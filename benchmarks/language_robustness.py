@@ -11,7 +11,9 @@ triples, from one source:
 
 Beside each source, the keyword parser's identity, movement and role accuracy on the same manual
 slots, as GPTHard and the review page use it (keywords only) and with the frozen text encoder's
-guess where no keyword rule decides. Cross-entropy and imagination come from
+guess where no keyword rule decides; and in each model's cell ("reads N%") how often the world
+model itself reads a description as about its true identity (lwm_models/world/reading.py).
+Cross-entropy and imagination come from
 `lwm_models.world.evaluate.evaluate_model`, the code of `lwm eval`, so the figures are `lwm eval`'s.
 A model that reads no text (Observational) is evaluated once and its figures stand for every
 source.
@@ -88,8 +90,23 @@ def text_encoder() -> FrozenTextEncoder:
     return FrozenTextEncoder()
 
 
-def evaluate(model_name: str, sources: list[str], args, summary: dict) -> None:
-    model, config = load_checkpoint(ROOT / "lwm_models" / "checkpoints" / model_name)
+def reading_on_slots(model, encoder, data: SplitTokens, episodes: int | None) -> float | None:
+    """How often the world model reads a manual slot's description as about its true identity
+    (lwm_models/world/reading.py); None for a model that reads no text."""
+    from lwm_models.world.reading import read_identities
+
+    slots = [(int(data.manuals[e, k]), ALL_TRIPLES[int(code)][0])
+             for e in data.evaluated_episodes(episodes) for k, code in enumerate(data.ds.parses[int(e)])]  # fmt: skip
+    texts = sorted({t for t, _ in slots})
+    read = dict(zip(texts, read_identities(model, encoder, [data.texts[t] for t in texts])))
+    if all(r is None for r in read.values()):
+        return None
+    return float(np.mean([read[t] == identity for t, identity in slots]))
+
+
+def evaluate(model_spec: str, sources: list[str], args, summary: dict) -> None:
+    model_name, _, path = model_spec.partition("=")
+    model, config = load_checkpoint(path or ROOT / "lwm_models" / "checkpoints" / model_name)
     encoder = model.frozen_text_encoder()
     reads_text = encoder is not None or model.route is not None
     shared = None
@@ -104,6 +121,7 @@ def evaluate(model_name: str, sources: list[str], args, summary: dict) -> None:
         entry = {
             "cross_entropy": shared["cross_entropy"],
             "reads_text": reads_text,
+            "identity_read": reading_on_slots(model, encoder, data, args.episodes),
             "seconds": round(time.perf_counter() - began, 1),
         }
         if "imagination" in shared:
@@ -112,8 +130,9 @@ def evaluate(model_name: str, sources: list[str], args, summary: dict) -> None:
             entry["imagination"] = {k: im[k] for k in keys}
         summary["results"].setdefault(model_name, {})[source] = entry
         ce = entry["cross_entropy"]["total"]
-        print(f"{model_name:<14} {source:<22} CE {ce:.4f}  ({entry['seconds']} s)", flush=True)
-    summary["checkpoints"][model_name] = {"kind": config["kind"], "steps": config.get("steps")}
+        read = "" if entry["identity_read"] is None else f", identity read {entry['identity_read']:.1%}"
+        print(f"{model_name:<14} {source:<22} CE {ce:.4f}{read}  ({entry['seconds']} s)", flush=True)
+    summary["checkpoints"][model_name] = {"kind": config["kind"], "steps": config.get("steps"), "path": path or None}
 
 
 def table(summary: dict) -> str:
@@ -133,6 +152,8 @@ def table(summary: dict) -> str:
             if imagined and "imagination" in r:
                 im = r["imagination"]
                 cell += f" ({im['reward_precision']:.2f} / {im['termination_precision']:.2f})"
+            if r.get("identity_read") is not None:
+                cell += f", reads {r['identity_read']:.0%}"
             cells.append(cell)
         for key in ("parser", "parser_with_encoder"):
             p = summary.get(key, {}).get(source)
@@ -148,7 +169,12 @@ def main() -> int:
     ap.add_argument(
         "--imagination-episodes", type=int, default=0, help="episodes to imagine for reward/termination precision"
     )
-    ap.add_argument("--models", nargs="+", default=list(MODELS), help="shipped checkpoints (lwm_models/checkpoints/)")
+    ap.add_argument(
+        "--models",
+        nargs="+",
+        default=list(MODELS),
+        help="shipped checkpoints (lwm_models/checkpoints/), or NAME=DIR for any checkpoint directory",
+    )
     ap.add_argument("--sources", nargs="+", default=list(SOURCES), choices=SOURCES, metavar="SOURCE")
     ap.add_argument("--seed", type=int, default=0, help="seed of the re-drawn manuals and of the imagination")
     ap.add_argument("--out", type=Path, default=OUT, help="summary JSON; results already in it are kept and merged")

@@ -479,7 +479,7 @@ class ReviewLoop:
             self.config.teaching,
             seed=r.seed * 1000 + r.plans,
             should_stop=lambda: self.closing.is_set() or self.review is not r,
-            on_round=lambda round_no, _: progress(round_no),
+            on_round=lambda round_no, res: progress(round_no, roles=res.belief.describe()),
             fresh=fresh,
         )
         summary = result.summary()

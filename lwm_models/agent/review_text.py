@@ -15,7 +15,7 @@ import numpy as np
 from ..messenger.constants import ACTION_NAMES
 from ..messenger.render import legend as board_legend
 from ..messenger.render import render_ascii
-from .understood import believed, describe
+from .understood import believed, describe, read_roles
 
 ACTIONS_KEY = "actions: " + "  ".join(f"{i} {name}" for i, name in enumerate(ACTION_NAMES))
 
@@ -45,8 +45,9 @@ def progress_text(progress: dict) -> str:
     """The agent teaching itself from a manual, in a line: what it does and how far it is."""
     manual = f"manual v{progress['manual_version']}" if "manual_version" in progress else "the manual"
     if not progress["done"]:
+        read = f"the world model read {manual} as: {read_roles(progress['roles'])}; " if progress.get("roles") else ""
         return (
-            f"the agent is learning from {manual} in imagination: round {progress['round']} of "
+            f"{read}the agent is learning from {manual} in imagination: round {progress['round']} of "
             f"{progress['rounds']} ({progress['seconds']:.0f} s); its plan follows"
         )
     roles = f"; {believed(progress['roles'])}" if progress.get("roles") else ""

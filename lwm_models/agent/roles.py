@@ -13,6 +13,10 @@ are the game's own (its 24 starts and what follows), which is what the world mod
 on: made-up boards (an avatar placed next to an entity) were tried and the shipped EMMA-LWM
 imagined no contact on most of them.
 
+The same imagined probes show how the world model moves each entity (toward the avatar, away, or
+not at all: `understood.read_back`), so a person hears what it read of the movements too before any
+plan, in `RoleBelief.describe`.
+
 A reviewer's labels are evidence too: a label that the expert would give under one assignment and
 not under another moves the belief (`RoleBelief.update`), so a few labels settle what the
 imagination left open. The expert is the paper's simulated human (go to the message, then to the
@@ -22,7 +26,7 @@ goal), reading the believed roles instead of the true manual.
 from __future__ import annotations
 
 import itertools
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -36,6 +40,7 @@ from ..messenger.constants import (
     REWARD_WIN,
 )
 from .expert import expert_actions, expert_choices
+from .understood import read_back
 
 ROLES = ("enemy", "message", "goal")  # the order of role_ids and of an assignment
 CONTACT_NOISE = 0.15  # how often an imagined contact is taken to show the wrong outcome
@@ -132,11 +137,10 @@ def _touching(before: np.ndarray, now: np.ndarray) -> bool:
     return any(now[c, 0] != 0 and (now[c, 1:] == now[AVATAR_CHANNEL, 1:]).all() for c in range(3))
 
 
-def imagine_contacts(
-    imaginer, starts: np.ndarray, samples: int = 8, max_steps: int = 20, seed: int = 0
-) -> list[Contact]:
-    """The contacts of `samples` imagined trajectories per ordering of two entities, from the
-    game's first boards `starts` [k, 4, 3], through `imaginer` (ServiceImaginer or LocalImaginer)."""
+def imagine_probes(imaginer, starts: np.ndarray, samples: int = 8, max_steps: int = 20, seed: int = 0):
+    """`samples` imagined trajectories per ordering of two entities, each seeking the one and
+    then the other, from the game's first boards `starts` [k, 4, 3], through `imaginer`
+    (ServiceImaginer or LocalImaginer)."""
     starts = np.asarray(starts, dtype=np.uint8).reshape(-1, 4, 3)
     ids = [int(i) for i in starts[0, :3, 0] if i]
     rng = np.random.default_rng(seed)
@@ -152,8 +156,7 @@ def imagine_contacts(
                 out[mine] = policy(obs[mine], np.asarray(idx)[mine], t)
         return out
 
-    im = imaginer.rollout(chosen, act, n=len(chosen), max_steps=max_steps, seed=seed)
-    return contacts(im.observations, im.rewards, im.lengths)
+    return imaginer.rollout(chosen, act, n=len(chosen), max_steps=max_steps, seed=seed)
 
 
 @dataclass
@@ -163,6 +166,7 @@ class RoleBelief:
     ids: tuple[int, ...]  # the entity ids of the game
     assignments: list[tuple[int, int, int]]  # each: the ids of (enemy, message, goal)
     log_p: np.ndarray  # [6] unnormalised log posterior
+    movements: dict[int, str] = field(default_factory=dict)  # id -> how the probes saw it move
 
     @classmethod
     def uniform(cls, ids) -> RoleBelief:
@@ -248,7 +252,8 @@ class RoleBelief:
             self.log_p[h] += np.log(like).sum()
 
     def describe(self) -> list[dict]:
-        """Per entity: the role it most probably has, and how probable that is."""
+        """Per entity: the role it most probably has, how probable that is, and how the world model
+        moved it in the probes (when they were imagined here)."""
         p, out = self.p, []
         for ident in self.ids:
             by_role = {r: float(sum(w for w, a in zip(p, self.assignments, strict=True) if a[k] == ident))
@@ -256,6 +261,8 @@ class RoleBelief:
             role = max(by_role, key=by_role.get)
             out.append({"id": ident, "identity": ID_TO_IDENTITY.get(ident, str(ident)), "role": role,
                         "p": round(by_role[role], 3)})  # fmt: skip
+            if ident in self.movements:
+                out[-1]["movement"] = self.movements[ident]
         return out
 
 
@@ -268,7 +275,10 @@ def _expected(c: Contact, message: int, goal: int) -> str:
 def believe(imaginer, starts: np.ndarray, samples: int = 8, seed: int = 0) -> RoleBelief:
     """What the world model behind `imaginer` believes of the roles on these boards [k, 4, 3]."""
     starts = np.asarray(starts).reshape(-1, 4, 3)
-    return RoleBelief.from_contacts(starts[0, :3, 0], imagine_contacts(imaginer, starts, samples, seed=seed))
+    im = imagine_probes(imaginer, starts, samples, seed=seed)
+    belief = RoleBelief.from_contacts(starts[0, :3, 0], contacts(im.observations, im.rewards, im.lengths))
+    belief.movements = {e["id"]: e["movement"] for e in read_back(im.observations, im.rewards, im.lengths)}
+    return belief
 
 
-__all__ = ["Contact", "RoleBelief", "believe", "contacts", "imagine_contacts", "seek"]
+__all__ = ["Contact", "RoleBelief", "believe", "contacts", "imagine_probes", "seek"]

@@ -158,6 +158,8 @@ def teach(
         belief = believe(imaginer, starts, config.contact_samples, seed)
     began = spend("roles", began)
     result = TeachingResult(belief, seconds=seconds)
+    if on_round is not None:
+        on_round(0, result)  # what the world model read, before any round: a person hears it first
     rng = np.random.default_rng(seed)
     gen = torch.Generator().manual_seed(seed)
     opt = torch.optim.Adam(policy.parameters(), lr=config.lr)

@@ -132,14 +132,21 @@ def describe(entry: dict) -> str:
     return f"{movement}; {role}"
 
 
-def believed(roles: list[dict]) -> str:
-    """The roles the agent acts on (a plan's "roles", agent/roles.py), as one sentence: what a
-    reviewer checks first, since a policy taught under a wrong role heads for the wrong entity."""
+def read_roles(roles: list[dict]) -> str:
+    """Roles read by the probes (agent/roles.py) as a list: "dog the enemy, comes toward you (93%
+    sure), ..."; the movement where the probes saw one."""
     said = []
     for entry in roles:
         sure = "unsure" if entry["p"] < 0.6 else f"{entry['p']:.0%} sure"
-        said.append(f"{entry['identity']} the {entry['role']} ({sure})")
-    return "the agent acts on: " + ", ".join(said)
+        moves = f", {entry['movement']}" if entry.get("movement") not in (None, "not seen") else ""
+        said.append(f"{entry['identity']} the {entry['role']}{moves} ({sure})")
+    return ", ".join(said)
 
 
-__all__ = ["believed", "describe", "read_back"]
+def believed(roles: list[dict]) -> str:
+    """The roles the agent acts on (a plan's "roles", agent/roles.py), as one sentence: what a
+    reviewer checks first, since a policy taught under a wrong role heads for the wrong entity."""
+    return "the agent acts on: " + read_roles(roles)
+
+
+__all__ = ["believed", "describe", "read_back", "read_roles"]

@@ -36,6 +36,7 @@ from .continuous import Track, run_alone
 from .frozen_text import FrozenTextEncoder
 from .imagine import Imagination, Rollout, condition_rows
 from .manual import ManualBatch
+from .reading import grounding, read_identities, ungrounded_note
 from .shipped import shipped_checkpoint
 
 
@@ -66,6 +67,7 @@ class Simulator:
             raise LwmError(f"the simulator serves models that read manuals as text; {self.kind} needs true parses")
         self.encoder = encoder if encoder is not None else self.model.frozen_text_encoder()
         self.manual: list[str] | None = None
+        self.reading: list[str | None] | None = None  # the identity the model reads each description as about
         self.manual_version = 0
         self.manual_source = ""
         self.game = ""  # split:index of the last environment manual
@@ -93,25 +95,31 @@ class Simulator:
                 return self.manual_version, False
             batch = self.model.read_manual(descriptions, self.encoder)
             self.manual, self._batch = list(descriptions), batch
+            self.reading = read_identities(self.model, self.encoder, self.manual)
             self.manual_version += 1
             self.manual_source = source
             self._save()
             return self.manual_version, True
 
-    def unnamed_entities(self, descriptions: list[str]) -> list[str] | None:
-        """The entities of the current game that no description names (read by the keyword
-        parser), so that a person who wrote about another board hears it; None when the game is
-        not known yet."""
+    def board(self) -> list[str] | None:
+        """The identities on the current game's board; None when the game is not known yet."""
         from ..data.splits import load_split
-        from ..text.parser import parse_identity
 
         split, _, index = self.game.rpartition(":")
         try:
             game = load_split(split)[int(index)]
         except (LwmError, ValueError, IndexError, KeyError, OSError):
             return None
-        named = {parse_identity(d) for d in descriptions}
-        return [e.identity for e in game.entities if e.identity not in named]
+        return [e.identity for e in game.entities]
+
+    def ungrounded(self) -> str | None:
+        """What to tell a person when the world model reads a description of the current manual as
+        about an entity that is not on the board (world/reading.py); None when all are placed."""
+        with self.lock:
+            board = self.board()
+            if board is None or not self.manual or self.reading is None:
+                return None
+            return ungrounded_note(self.manual, self.reading, board)
 
     def take_env_manual(self, descriptions: list[str], episode_id: str = "") -> tuple[int, bool]:
         """The environment's manual is the default: it replaces the manual when no person has
@@ -140,6 +148,11 @@ class Simulator:
         }
         if self.manual:
             out["manual"] = self.manual
+        board = self.board()
+        if board is not None:
+            out["board"] = board
+            if self.manual and self.reading is not None and any(r is not None for r in self.reading):
+                out["reading"] = grounding(self.reading, board)
         return out
 
     def _save(self) -> None:
@@ -159,6 +172,7 @@ class Simulator:
             if state.get("manual"):
                 self._batch = self.model.read_manual(state["manual"], self.encoder)
                 self.manual = list(state["manual"])
+                self.reading = read_identities(self.model, self.encoder, self.manual)
             self.manual_version = int(state.get("version", 0))
             self.manual_source = str(state.get("source", ""))
             self.game = str(state.get("game", ""))

@@ -244,10 +244,11 @@ class HumanNode(JsonNode):
 
     def on_progress(self, progress: dict) -> None:
         """The agent learns from a manual before its plan: the page shows each round; the terminal
-        says when it starts and ends (a line a round would bury the plan)."""
+        says what the world model read (round 0, roles and movements) and when it ends (a line a
+        round would bury the plan)."""
         if self.page is not None:
             self.page.push("progress", progress_view(progress))
-        elif not self.scripted and (progress["round"] == 0 or progress["done"]):
+        elif not self.scripted and ((progress["round"] == 0 and progress.get("roles")) or progress["done"]):
             print(progress_text(progress), flush=True)
 
     def on_plan(self, plan: dict) -> None:

@@ -59,9 +59,9 @@ class SimulatorNode(JsonNode):
         self.get_logger().info(f"manual version {version} from {payload.get('source', 'human')}")
         self.publish_status(self.sim.status())
         said = f"manual version {version} taken: the world model reads it and the agent re-plans"
-        unnamed = self.sim.unnamed_entities(payload["descriptions"])
-        if unnamed is not None and len(unnamed) == 3:
-            said += f"; but it names none of the entities on the board ({', '.join(unnamed)})"
+        note = self.sim.ungrounded()
+        if note is not None:
+            said += f"; but {note}"
         return said
 
     def on_env_manual(self, payload: dict) -> None:

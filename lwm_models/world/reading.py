@@ -1,0 +1,105 @@
+"""Which entity a world model reads each description of a manual as being about.
+
+A person who writes "the hound runs off" about a board without a dog needs to hear it before a plan
+is shown, from the world model itself rather than from a separate parser that may read the text
+differently.
+
+- EMMA-LWM: each entity's id vector queries the descriptions (`DescriptionAttention`); within one
+  manual the entity attends to its own description. The raw scores are not comparable across
+  identities (some id vectors score every description high), so each identity's scores are
+  standardised by their mean and spread over reference descriptions (three generated descriptions
+  of each of the 108 triples, computed once per model). The identity with the highest standardised
+  score is the one the model reads the description as about.
+- GPTHard: the identity its router gave the description (the keyword parser).
+- A model that reads no text reads no identity.
+
+`benchmarks/language_robustness.py` measures how often this is the description's true identity.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import torch
+
+from ..messenger.constants import ALL_TRIPLES, ID_TO_IDENTITY, IDENTITIES
+from .base import WorldModel
+from .frozen_text import FrozenTextEncoder
+from .manual import ManualBatch
+
+IDENTITY_IDS = sorted(set(IDENTITIES.values()))
+REFERENCE_PER_TRIPLE = 3
+
+
+def attention_scores(model: WorldModel, manual: ManualBatch) -> torch.Tensor:
+    """[B, 3, 12] the query of every identity's id vector against each description's key."""
+    tokens = model.text_encoder(manual.features, manual.mask)
+    reader = model.reader
+    keys = reader.k(reader.key_pool(tokens, manual.mask))  # [B, 3, W]
+    queries = reader.q(model.obs_embedding(torch.tensor(IDENTITY_IDS)))  # [12, W]
+    return torch.einsum("iw,bdw->bdi", queries, keys)
+
+
+def _reference_texts() -> list[str]:
+    from ..text.generator import generate_descriptions
+
+    texts = []
+    for triple in ALL_TRIPLES:
+        found = generate_descriptions(triple)
+        step = max(1, len(found) // REFERENCE_PER_TRIPLE)
+        texts.extend(found[::step][:REFERENCE_PER_TRIPLE])
+    return texts
+
+
+@torch.inference_mode()
+def _calibration(model: WorldModel, encoder: FrozenTextEncoder) -> tuple[torch.Tensor, torch.Tensor]:
+    cached = getattr(model, "_identity_calibration", None)
+    if cached is None:
+        features, lengths = encoder.encode_arrays(_reference_texts())
+        feats = torch.from_numpy(features).float()[None]
+        mask = torch.arange(feats.shape[2])[None, None, :] < torch.from_numpy(lengths)[None, :, None]
+        scores = attention_scores(model, ManualBatch(feats, mask))[0]
+        cached = (scores.mean(0), scores.std(0).clamp(min=1e-6))
+        model._identity_calibration = cached
+    return cached
+
+
+@torch.inference_mode()
+def read_identities(
+    model: WorldModel, encoder: FrozenTextEncoder | None, descriptions: Sequence[str]
+) -> list[str | None]:
+    """The identity `model` reads each description as about (None: it reads no text)."""
+    if model.route is not None:
+        return [ID_TO_IDENTITY.get(int(model.route(d))) for d in descriptions]
+    if not model.reads_text or encoder is None or not hasattr(model, "reader"):
+        return [None] * len(descriptions)
+    was_training = model.training
+    model.eval()
+    mean, std = _calibration(model, encoder)
+    features, mask = encoder.encode(list(descriptions))
+    scores = attention_scores(model, ManualBatch(features[None].float(), mask[None]))[0]
+    model.train(was_training)
+    best = ((scores - mean) / std).argmax(-1)
+    return [ID_TO_IDENTITY[IDENTITY_IDS[int(i)]] for i in best]
+
+
+def grounding(read: Sequence[str | None], board: Sequence[str]) -> list[dict]:
+    """Per description: the identity read and whether that entity is on the board."""
+    return [{"identity": r, "on_board": r is not None and r in board} for r in read]
+
+
+def ungrounded_note(descriptions: Sequence[str], read: Sequence[str | None], board: Sequence[str]) -> str | None:
+    """What to tell a person whose descriptions the world model reads as about entities that are
+    not on the board, or None when every description is about one that is."""
+    off = [(i, r) for i, r in enumerate(read) if r is not None and r not in board]
+    if not off:
+        return None
+    said = "; ".join(f'"{_short(descriptions[i])}" reads as the {r}' for i, r in off)
+    return f"the world model cannot place {said}: not on this board ({', '.join(board)})"
+
+
+def _short(text: str, limit: int = 48) -> str:
+    return text if len(text) <= limit else text[: limit - 3].rstrip() + "..."
+
+
+__all__ = ["attention_scores", "grounding", "read_identities", "ungrounded_note"]

@@ -1,0 +1,70 @@
+"""What the world model reads each description as about (lwm_models/world/reading.py), and the
+simulator telling a person when a description is about an entity that is not on the board."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from lwm_models.data.splits import load_split
+from lwm_models.text import DescriptionPools
+from lwm_models.world.checkpoint import load_checkpoint
+from lwm_models.world.reading import grounding, read_identities, ungrounded_note
+from lwm_models.world.shipped import shipped_checkpoint
+from lwm_models.world.simulator import Simulator
+
+
+@pytest.fixture(scope="module")
+def emma():
+    model, _ = load_checkpoint(shipped_checkpoint("emma"))
+    return model, model.frozen_text_encoder()
+
+
+def test_emma_reads_which_entity_each_description_is_about(emma):
+    model, encoder = emma
+    pools = DescriptionPools.generated()
+    rng = np.random.default_rng(0)
+    games = load_split("newall-test")[:20]
+    right = total = 0
+    for game in games:
+        triples = list(game.triples)
+        read = read_identities(model, encoder, pools.draw("newall-test", triples, rng))
+        right += sum(r == t[0] for r, t in zip(read, triples))
+        total += 3
+    # text the model was never trained on, of games it never saw: most, not all, are read right
+    assert right / total >= 0.8, right / total
+
+
+def test_models_that_read_no_text_read_no_identity():
+    model, _ = load_checkpoint(shipped_checkpoint("observational"))
+    assert read_identities(model, None, ["a", "b", "c"]) == [None, None, None]
+
+
+def test_the_note_names_what_is_off_the_board():
+    descriptions = ["the hound is the goal", "the ball has the message", "the plane is deadly"]
+    assert ungrounded_note(descriptions, ["ball", "airplane", "robot"][::-1], ["robot", "ball", "airplane"]) is None
+    note = ungrounded_note(descriptions, ["dog", "ball", "airplane"], ["robot", "ball", "airplane"])
+    assert '"the hound is the goal" reads as the dog' in note and "robot, ball, airplane" in note
+    assert grounding(["dog", None], ["ball"]) == [
+        {"identity": "dog", "on_board": False},
+        {"identity": None, "on_board": False},
+    ]
+
+
+def test_the_simulator_flags_a_manual_about_another_board(tmp_path):
+    game = load_split("newall-test")[0]
+    board = [e.identity for e in game.entities]
+    sim = Simulator(state_path=tmp_path / "state.json")
+    pools = DescriptionPools.generated()
+    sim.take_env_manual(pools.draw("newall-test", list(game.triples), np.random.default_rng(1)), "newall-test:0:0")
+    status = sim.status()
+    assert status["board"] == board and [r["on_board"] for r in status["reading"]] == [True, True, True]
+    assert sim.ungrounded() is None
+
+    others = [t for g in load_split("newall-test") for t in g.triples if t[0] not in board]
+    foreign = [others[0], next(t for t in others if t[0] != others[0][0])]
+    manual = pools.draw("newall-test", [*foreign, game.triples[2]], np.random.default_rng(2))
+    sim.set_manual(manual, "human")
+    note = sim.ungrounded()
+    assert note is not None and "not on this board" in note and foreign[0][0] in note, note
+    assert [r["on_board"] for r in sim.status()["reading"]][:2] == [False, False]
