@@ -328,6 +328,20 @@ def test_review_in_the_browser(unnamed_page_system, browser):
     assert again["observations"][0] == first["observations"][0] and again["review_id"] == f"{following}#2"
     shoot(browser, tmp_path, "review_page_restarted.png")
 
+    # A description of an entity that is not on this board: the world model says so at once, in the
+    # manual's answer and under the manual, before any plan of it.
+    status = json.load(urllib.request.urlopen(url + "api/state", timeout=10))["status"]
+    assert len(status["board"]) == 3 and len(status["reading"]) == 3
+    stranger = next(name for name in ("queen", "sword", "ship", "mage") if name not in status["board"])
+    box = browser.find_element("id", "d0")
+    box.clear()
+    box.send_keys(f"the {stranger} is the goal and it never moves.")
+    browser.find_element("id", "send-manual").click()
+    wait.until(lambda _: "not on this board" in text("message"))
+    assert f"reads as the {stranger}" in text("message")
+    wait.until(lambda _: f"{stranger} (not on this board)" in text("reading"))
+    shoot(browser, tmp_path, "review_page_off_board.png", "reading")
+
     # Another origin cannot answer through the reviewer's browser.
     request = urllib.request.Request(
         url + "api/feedback",

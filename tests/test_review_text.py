@@ -61,3 +61,10 @@ def test_the_agent_learning_from_a_manual_is_said_in_a_line():
     assert progress_text(done) == (
         "the agent learnt from manual v2 in 20 s (10 rounds); the agent acts on: airplane the enemy (90% sure)"
     )
+    # Round 0 carries what the world model read, before any learning: roles and movements.
+    read = messages.schema("progress")["examples"][-1]
+    messages.validate("progress", read)
+    assert progress_text(read).startswith(
+        "the world model read manual v2 as: airplane the enemy, comes toward you (93% sure), ball the message, "
+        "moves away from you (93% sure), robot the goal, stays put (93% sure); the agent is learning"
+    )

@@ -119,3 +119,17 @@ def test_the_world_model_reads_the_roles_and_teaching_itself_beats_the_warm_star
     swapped = DescriptionPools.generated().draw(None, swapped_triples, np.random.default_rng(0))
     wrong, read = taught(swapped)
     assert read[1:] != truth[1:] and wrong < after - 0.5, (after, wrong, read)
+
+
+def test_the_probes_read_back_how_each_entity_moves(encoder, emma):
+    """NewAll test game 0 (a chasing airplane, a fleeing ball, a still robot), its manual from the
+    project's generator: the probes that read the roles also say how the world model moves each
+    entity, and that is what a person is told before the plan (progress round 0)."""
+    game = load_split("newall-test")[0]
+    env = MessengerEnv(game, pools=DescriptionPools.generated(), split="newall-test")
+    env.reset(0)
+    imaginer = LocalImaginer(emma, emma.read_manual(env.manual, emma.frozen_text_encoder(), list(game.triples)))
+    belief = believe(imaginer, start_observations(game), samples=8, seed=0)
+    said = {"chaser": "comes toward you", "fleeing": "moves away from you", "immovable": "stays put"}
+    read = {entry["identity"]: entry["movement"] for entry in belief.describe()}
+    assert read == {e.identity: said[e.movement] for e in game.entities}
