@@ -69,6 +69,10 @@ def manual_of(ds: TrajectoryDataset, game_index: int, source: str, seed: int) ->
     return pools.draw(SPLIT, triples, rng), triples
 
 
+def reads_text(model) -> bool:
+    return model.reads_text or model.route is not None
+
+
 def score(model, encoder, ds: TrajectoryDataset, game_index: int, source: str, seed: int, samples: int) -> dict:
     game = ds.games[game_index]
     manual, triples = manual_of(ds, game_index, source, seed)
@@ -84,7 +88,7 @@ def score(model, encoder, ds: TrajectoryDataset, game_index: int, source: str, s
         "p": round(belief.best()[1], 3),
         "movement_right": int(sum(movement)),
         "movements": {e.identity: belief.movements.get(i) for i, e in truth.items()},
-        "identity_right": None if read[0] is None else int(sum(r == t[0] for r, t in zip(read, triples))),
+        "identity_right": int(sum(r == t[0] for r, t in zip(read, triples))) if reads_text(model) else None,
     }
 
 

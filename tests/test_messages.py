@@ -20,6 +20,8 @@ def test_every_payload_of_the_system_has_a_schema():
         "env_step_request",
         "error",
         "execution_report",
+        "history_request",
+        "history_response",
         "imagine_request",
         "imagine_response",
         "label_request",

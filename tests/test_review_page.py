@@ -279,7 +279,7 @@ def test_review_in_the_browser(unnamed_page_system, browser):
         urllib.request.urlopen(late, timeout=30)
     assert refused.value.code == 400 and "is over (its report is out)" in json.load(refused.value)["error"]
 
-    # The history (the ledger, read by the page's server) lists the review with its report.
+    # The history (the planner's ledger, over /planner/history) lists the review with its report.
     review_id = title().split(" of review ")[1].split()[0]
     wait.until(lambda _: "real return" in text("reviews"))
     row = browser.find_element("css selector", "#reviews tr.review")

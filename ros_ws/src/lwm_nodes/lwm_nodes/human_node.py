@@ -28,8 +28,8 @@ files to draw them from; default: the project's generator).
 With page_port:=PORT (`./run_nodes.sh --page PORT`) it serves the review page in the browser
 instead of reading the terminal (lwm_nodes/review_page.py, on page_host, default localhost): the
 plan and its futures drawn, the manual's legend, the answers, the label requests' states to label,
-the execution report, and the review history read (read-only) from the planner's ledger at
-`ledger` (default logs/ledger.sqlite; the launcher passes its --ledger). Page answers take the
+the execution report, and the review history, which the planner (the ledger's one owner) answers on
+/planner/history, wherever it runs. Page answers take the
 terminal's code paths: the same checks, signature and schema.
 Everything it publishes is signed as reviewer `reviewer` (default: scripted or terminal; on the page,
 nobody until the person says who they are) with that reviewer's key from `keys_file`
@@ -39,32 +39,30 @@ nobody until the person says who they are) with that reviewer's key from `keys_f
 from __future__ import annotations
 
 import queue
-import sqlite3
 import sys
 import threading
 import time
 import uuid
 from collections.abc import Callable
-from pathlib import Path
 
 from lwm_interfaces.srv import Json
 from std_msgs.msg import String
 
 from lwm_models import messages
-from lwm_models.agent.imaginer import ServiceImaginer
+from lwm_models.agent.imaginer import ServiceImaginer, Unavailable
 from lwm_models.agent.review import check_labels
 from lwm_models.agent.review_text import plan_text, progress_text, state_text
 from lwm_models.agent.review_view import history_view, label_request_view, plan_view, progress_view, report_view
 from lwm_models.agent.reviewer import ScriptedReviewer
 from lwm_models.data.episode import Episode
 from lwm_models.data.splits import load_split
-from lwm_models.ledger import Ledger
-from lwm_models.run_dirs import DEFAULT_LEDGER
+from lwm_models.errors import LwmError
 from lwm_nodes.common import ACKS, ACKS_TOPIC, FEEDBACK, LATCHED, JsonNode, json_caller, run
 from lwm_nodes.review_page import ReviewPage
 from lwm_nodes.trust import Signer
 
 PAGE_ANSWER_WAIT_S = 8.0  # how long the page's request waits for the receiving node's answer
+HISTORY_WAIT_S = 5.0  # how long the page's history waits for the planner's /planner/history
 
 
 class Refused(ValueError):
@@ -100,7 +98,6 @@ class HumanNode(JsonNode):
         self.request_deadline = float("inf")  # monotonic; when the planner stops waiting for its labels
         self.answered: set[tuple[str, int]] = set()  # (review_id, request_id): the planner takes one answer
         self.labels_lock = threading.Lock()  # the page answers from its own threads (a double click, too)
-        self.ledger_path = Path(p("ledger", str(DEFAULT_LEDGER)).value)
         port = int(p("page_port", 0).value)
         # At the page nobody answers until the person says who they are (unless the launcher said).
         signer = Signer(self, "scripted" if self.scripted else "" if port else "terminal")
@@ -124,6 +121,9 @@ class HumanNode(JsonNode):
             json_caller(self, self.create_client(Json, "/lwm/imagine"), "imagine_response", 30.0)
         )
         self.env_reset = json_caller(self, self.create_client(Json, "/env/reset"), "env_response", 30.0)
+        self.history_call = json_caller(
+            self, self.create_client(Json, "/planner/history"), "history_response", HISTORY_WAIT_S
+        )
         self.json_subscription("/env/state", "state", self.on_state, LATCHED)
         self.json_subscription("/planner/plan", "plan", self.on_plan, LATCHED)
         self.json_subscription("/planner/label_request", "label_request", self.on_label_request, LATCHED)
@@ -307,6 +307,14 @@ class HumanNode(JsonNode):
         print(f"scripted human: manual feedback on plan {plan['plan_id']} at {time.time():.3f}", flush=True)
 
     def on_label_request(self, request: dict) -> None:
+        if self.page is not None:
+            # The page asks the planner whether the request is still open (/planner/history), and a
+            # service call waits for an answer the executor must deliver: not on the executor.
+            self.work.put(lambda: self._take_label_request(request))
+        else:
+            self._take_label_request(request)
+
+    def _take_label_request(self, request: dict) -> None:
         if (
             self.request is not None
             and request["review_id"] == self.request["review_id"]
@@ -318,7 +326,7 @@ class HumanNode(JsonNode):
             issued = self.request_issued(request)
             if issued is None:
                 self.get_logger().info(
-                    f"label request {request['request_id']} is over (in the ledger, or expired); not shown"
+                    f"label request {request['request_id']} is over (in the planner's history, or expired); not shown"
                 )
                 return
         waits = request.get("timeout", float("inf"))
@@ -348,20 +356,15 @@ class HumanNode(JsonNode):
 
     def request_issued(self, request: dict) -> float | None:
         """When the planner issued this label request (wall time), or None when it waits for it no
-        more, from the planner's ledger. The request is latched: a restarted node gets the last one
-        however old, perhaps answered, and the page would ask the person to label it again for
-        nothing. Over: the ledger holds its labels, a later request, a plan or a report after it, or
-        its deadline has passed (the planner may not have written what it did next yet).
-        Without the ledger, or with one that does not hold this request (the planner on another
-        host; a ledger that cannot be read now), the request is taken as new: a request wrongly
-        dropped would end the person's round."""
+        more, from the planner's history (/planner/history). The request is latched: a restarted
+        node gets the last one however old, perhaps answered, and the page would ask the person to
+        label it again for nothing. Over: the history holds its labels, a later request, a plan or
+        a report after it, or its deadline has passed (the planner may not have written what it did
+        next yet). Without an answer from the planner, or one that does not hold this request, the
+        request is taken as new: a request wrongly dropped would end the person's round."""
         try:
-            ledger = Ledger(self.ledger_path, read_only=True)
-            try:
-                history = ledger.history(request["review_id"])
-            finally:
-                ledger.close()
-        except (OSError, sqlite3.Error):
+            history = self.history(request["review_id"])["records"]
+        except (Unavailable, LwmError, KeyError):
             return time.time()
         issued = {
             "request_id": request["request_id"],
@@ -450,19 +453,24 @@ class HumanNode(JsonNode):
         self.get_logger().info(f"page: {len(labels['states'])} label(s) for request {labels['request_id']}")
         return self._page_answer(msg_id, "the planner")
 
+    def history(self, review_id: str | None = None) -> dict:
+        """The planner's answer on /planner/history: the reviews, or one review's records. Raises
+        Unavailable when the planner does not answer, LwmError when it cannot read its ledger."""
+        asked = {"version": messages.version("history_request")}
+        answer = self.history_call(asked if review_id is None else {**asked, "review_id": review_id})
+        if not answer["ok"]:
+            raise LwmError(answer["error"])
+        return answer
+
     def page_history(self, review_id: str | None) -> dict:
-        """The reviews in the ledger, or one review's records; read-only: the planner writes it."""
-        out = {"ledger": str(self.ledger_path)}
+        """The reviews the planner keeps, or one review's records, as the page lists them."""
         try:
-            ledger = Ledger(self.ledger_path, read_only=True)
-        except FileNotFoundError as exc:  # the planner has not written it yet, or runs on another host
-            return {**out, "reviews": [], "records": [], "note": str(exc)}
-        try:
-            if review_id is None:
-                return {**out, "reviews": ledger.summaries()}
-            return {**out, "review_id": review_id, "records": history_view(ledger.history(review_id))}
-        finally:
-            ledger.close()
+            found = self.history(review_id)
+        except (Unavailable, LwmError) as exc:  # the planner is not up yet, or cannot read its ledger now
+            return {"reviews": [], "records": [], "note": f"no history from the planner: {exc}"}
+        if review_id is None:
+            return {"ledger": found["ledger"], "reviews": found["reviews"]}
+        return {"ledger": found["ledger"], "review_id": review_id, "records": history_view(found["records"])}
 
     def on_page_manual(self, descriptions: list[str]) -> str:
         msg_id = self.publish_manual({"descriptions": descriptions, "source": "human"})

@@ -132,7 +132,7 @@ def default_nodes(
         params = {"scripted": "true", **signs, **(reviewer or {})}
         nodes.append(NodeSpec("human", "lwm_nodes.human_node", params, final=True))
     elif human == "page":
-        page = {"page_port": str(page_port), "ledger": ledger, **({"reviewer": person} if person else {})}
+        page = {"page_port": str(page_port), **({"reviewer": person} if person else {})}
         nodes.append(NodeSpec("human", "lwm_nodes.human_node", {**signs, **page}))
     elif human == "interactive":
         params = {**signs, "reviewer": person}

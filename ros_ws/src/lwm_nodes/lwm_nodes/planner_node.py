@@ -5,7 +5,9 @@ It holds no world model: everything it imagines goes through the simulator's /lw
 version on /lwm/status (a new version re-plans), opens a review for each fresh episode on
 /env/state, publishes plans (/planner/plan), label requests (/planner/label_request) and execution
 reports (/planner/report), takes /review/feedback and /review/labels, and acts in the real game
-through /env/reset and /env/step, closed loop, only after approval.
+through /env/reset and /env/step, closed loop, only after approval. It owns the ledger and answers
+/planner/history (the reviews, or one review's records), so a review page on any host reads the
+history over ROS, not from the file.
 
 Feedback and labels are taken only when signed by a reviewer the planner trusts (parameters
 `keys_file`, `trusted`; lwm_nodes.trust): anything else is reported on /lwm/errors and changes
@@ -13,6 +15,8 @@ nothing.
 """
 
 from __future__ import annotations
+
+import sqlite3
 
 from lwm_interfaces.srv import Json
 
@@ -39,6 +43,7 @@ class PlannerNode(JsonNode):
         keyring = declare_keyring(self)  # first: a bad key file stops the node before the models load
         self.policy_dir = p("policy", "").value
         ledger = p("ledger", str(DEFAULT_LEDGER)).value
+        self.ledger_path = ledger
         call_timeout = float(p("call_timeout", 30.0).value)
         # Learning rounds imagined under the game's rules too (Table 3: raw learns better).
         constrained_learning = bool(p("constrained_learning", False).value)
@@ -85,6 +90,31 @@ class PlannerNode(JsonNode):
         self.json_subscription("/review/feedback", "review_feedback", on_feedback, FEEDBACK, acks=True)
         on_labels = verified(keyring, "labels", "/review/labels", self.loop.on_labels)
         self.json_subscription("/review/labels", "labels", on_labels, FEEDBACK, acks=True)
+        self.create_service(Json, "/planner/history", self.on_history)
+
+    def on_history(self, req, res):
+        """The reviews in the ledger, or one review's records, read from a read-only connection of
+        its own (the review loop writes through another, from its worker thread)."""
+        try:
+            asked = messages.parse("history_request", req.request)
+        except messages.MessageError as exc:
+            self.report_error("/planner/history", exc, req.request)
+            res.response = messages.dump("history_response", {"ok": False, "error": str(exc)})
+            return res
+        try:
+            ledger = Ledger(self.ledger_path, read_only=True)
+            try:
+                if "review_id" in asked:
+                    found = {"review_id": asked["review_id"], "records": ledger.history(asked["review_id"])}
+                else:
+                    found = {"reviews": ledger.summaries()}
+            finally:
+                ledger.close()
+            answer = {"ok": True, "ledger": str(self.ledger_path), **found}
+        except (OSError, sqlite3.Error) as exc:
+            answer = {"ok": False, "error": f"the ledger cannot be read: {exc}"}
+        res.response = messages.dump("history_response", answer)
+        return res
 
     def make_policy(self) -> EmmaPolicy:
         if self.policy_dir:

@@ -5,7 +5,7 @@ a snapshot of what is under review (GET /api/state), live updates as server-sent
 /api/events: plan, label_request, report, status, reviewer, progress; a page that connects, or
 reconnects after a node restart, gets what is shown now first, "no label request" included), the
 review history from the ledger (GET
-/api/history, /api/history?review=ID; the node reads the ledger read-only), and the person's
+/api/history, /api/history?review=ID; the node asks the planner, which owns the ledger), and the person's
 answers (POST /api/feedback, /api/labels, /api/manual), which the node signs and publishes, the
 next episode or this one again (POST /api/episode), and who is reviewing (GET and POST
 /api/reviewer: the node signs as that person from then on; every open page hears it). It
