@@ -133,12 +133,17 @@ def main() -> int:
     ap.add_argument("--sources", nargs="+", default=list(SOURCES), choices=SOURCES, metavar="SOURCE")
     ap.add_argument("--samples", type=int, default=8, help="imagined probes per ordering of two entities")
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--out", type=Path, default=OUT, help="summary JSON (records beside it, .jsonl)")
+    ap.add_argument(
+        "--out", type=Path, default=OUT, help="summary JSON (records beside it, .jsonl); other models' results are kept"
+    )
     args = ap.parse_args()
     torch.set_num_threads(1)
     ds = TrajectoryDataset(args.data, SPLIT)
     games = game_indices(len(ds.games), args.games)
-    records = []
+    names = [spec.partition("=")[0] for spec in args.models]
+    records_path = args.out.with_suffix(".jsonl")
+    kept = [json.loads(line) for line in records_path.open()] if records_path.is_file() else []
+    records = [r for r in kept if (r["model"], r["source"]) not in {(m, s) for m in names for s in args.sources}]
     began = time.perf_counter()
     for spec in args.models:
         name, _, path = spec.partition("=")

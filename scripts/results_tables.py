@@ -309,8 +309,71 @@ def effort(base: str) -> list[str]:
     return lines
 
 
+LANGUAGE_MODELS = (
+    ("emma-lwm", "EMMA-LWM"),
+    ("emma-lwm-freeform", "EMMA-LWM free-form"),
+    ("gpthard", "GPTHard"),
+    ("observational", "Observational (reads no text)"),
+)
+
+
+def _source_label(source: str) -> str:
+    if source == "dataset":
+        return "the dataset's (human-written)"
+    if source == "generated":
+        return "the project's generator"
+    return f"held-out {source.split(':', 1)[1]}"
+
+
+def language(base: str) -> list[str]:
+    """NewAll test cross-entropy by the wording of the manuals (benchmarks/language_robustness.py)."""
+    path = "language-robustness/summary.json"
+    summary = _load(path)
+    models = [(key, name) for key, name in LANGUAGE_MODELS if key in summary["results"]]
+    sources = list(dict.fromkeys(s for key, _ in models for s in summary["results"][key]))
+    lines = [
+        "| manuals of NewAll test | " + " | ".join(name for _, name in models) + " |",
+        "|---" * (len(models) + 1) + "|",
+    ]
+    for source in sources:
+        cells = []
+        for key, _ in models:
+            r = summary["results"][key].get(source)
+            if r is None:
+                cells.append("not measured")
+                continue
+            read = r.get("identity_read")
+            cells.append(f"{r['cross_entropy']['total']:.3f}" + ("" if read is None else f" ({read:.0%} placed)"))
+        lines.append(f"| {_source_label(source)} | " + " | ".join(cells) + " |")
+    episodes = summary["settings"]["episodes"]
+    lines.append(
+        f"\nTotal cross-entropy on {episodes:,} NewAll test episodes (lower is better); in brackets, how often the "
+        f"world model reads a description as about its true entity; {_link(path, base)}."
+    )
+    return lines
+
+
+def read_back(base: str) -> list[str]:
+    """What the system says the world model understood, against the true parse (benchmarks/read_back.py)."""
+    path = "read-back/summary.json"
+    summary = _load(path)
+    lines = [
+        "| world model | manuals | roles right (games) | movements right (entities) | descriptions placed right |",
+        "|---|---|---|---|---|",
+    ]
+    for key, name in LANGUAGE_MODELS:
+        for source, c in summary["results"].get(key, {}).items():
+            placed = "-" if c["identity"] is None else f"{c['identity']:.0%}"
+            lines.append(f"| {name} | {_source_label(source)} | {c['roles']:.0%} | {c['movement']:.0%} | {placed} |")
+    games = len(summary["settings"]["games"])
+    lines.append(f"\n{games} NewAll test games (Table 3's); {_link(path, base)}.")
+    return lines
+
+
 TABLES: dict[str, Callable[[str], list[str]]] = {
     "effort": effort,
+    "language": language,
+    "read-back": read_back,
     "summary": summary,
     "table1": table1,
     "table2": table2,

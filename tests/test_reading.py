@@ -44,7 +44,9 @@ def test_the_note_names_what_is_off_the_board():
     descriptions = ["the hound is the goal", "the ball has the message", "the plane is deadly"]
     assert ungrounded_note(descriptions, ["ball", "airplane", "robot"][::-1], ["robot", "ball", "airplane"]) is None
     note = ungrounded_note(descriptions, ["dog", "ball", "airplane"], ["robot", "ball", "airplane"])
-    assert '"the hound is the goal" reads as the dog' in note and "robot, ball, airplane" in note
+    assert note == (
+        'the world model reads "the hound is the goal" as about the dog, not on this board (robot, ball, airplane)'
+    )
     assert grounding(["dog", None], ["ball"]) == [
         {"identity": "dog", "on_board": False},
         {"identity": None, "on_board": False},

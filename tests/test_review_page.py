@@ -338,7 +338,7 @@ def test_review_in_the_browser(unnamed_page_system, browser):
     box.send_keys(f"the {stranger} is the goal and it never moves.")
     browser.find_element("id", "send-manual").click()
     wait.until(lambda _: "not on this board" in text("message"))
-    assert f"reads as the {stranger}" in text("message")
+    assert f"as about the {stranger}, not on this board" in text("message")
     wait.until(lambda _: f"{stranger} (not on this board)" in text("reading"))
     shoot(browser, tmp_path, "review_page_off_board.png", "reading")
 

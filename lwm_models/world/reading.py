@@ -94,8 +94,8 @@ def ungrounded_note(descriptions: Sequence[str], read: Sequence[str | None], boa
     off = [(i, r) for i, r in enumerate(read) if r is not None and r not in board]
     if not off:
         return None
-    said = "; ".join(f'"{_short(descriptions[i])}" reads as the {r}' for i, r in off)
-    return f"the world model cannot place {said}: not on this board ({', '.join(board)})"
+    said = " and ".join(f'"{_short(descriptions[i])}" as about the {r}' for i, r in off)
+    return f"the world model reads {said}, not on this board ({', '.join(board)})"
 
 
 def _short(text: str, limit: int = 48) -> str:
