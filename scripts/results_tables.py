@@ -216,16 +216,25 @@ def review_loop_variants(base: str) -> list[str]:
 
 
 def parser(base: str) -> list[str]:
-    path = "parser/accuracy.txt"
-    row = re.compile(r"^(\S+): (\d+) descriptions; identity ([\d.]+%), movement ([\d.]+%), role ([\d.]+%)$")
-    lines = ["| file | descriptions | identity | movement | role |", "|---|---|---|---|---|"]
-    for line in (RESULTS / path).read_text().splitlines():
+    """The keyword parser (keywords only, as GPTHard's routing uses it) on what it was and was not
+    tuned on: the first block of language-robustness/parser.txt."""
+    path = "language-robustness/parser.txt"
+    row = re.compile(r"^(.+): (\d+) descriptions; identity ([\d.]+%), movement ([\d.]+%), role ([\d.]+%)$")
+    shown = {
+        "PATH/text_train.json": "text_train.json (tuned on)",
+        "PATH/text_val.json": "text_val.json (never tuned on)",
+        "stress tune": "stress set, tuning part (tuned on)",
+        "stress heldout": "stress set, held-out part (never tuned on)",
+    }
+    lines = ["| descriptions | how many | identity | movement | role |", "|---|---|---|---|---|"]
+    for line in (RESULTS / path).read_text().split("\n\n")[0].splitlines():
         m = row.match(line)
-        if m:
+        if m and m.group(1) in shown:
             name, n, *rates = m.groups()
-            held_out = " (held out)" if "val" in name else ""
-            lines.append(f"| {name}{held_out} | {int(n):,} | " + " | ".join(rates) + " |")
-    return lines + [f"\n({_link(path, base)})"]
+            lines.append(f"| {shown[name]} | {int(n):,} | " + " | ".join(rates) + " |")
+    return lines + [
+        f"\n({_link(path, base)}; the same with the text encoder's guesses: [docs/language.md]({base}docs/language.md))"
+    ]
 
 
 def pilot(base: str) -> list[str]:
