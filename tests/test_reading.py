@@ -3,6 +3,9 @@ simulator telling a person when a description is about an entity that is not on 
 
 from __future__ import annotations
 
+import copy
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -70,3 +73,18 @@ def test_the_simulator_flags_a_manual_about_another_board(tmp_path):
     note = sim.ungrounded()
     assert note is not None and "not on this board" in note and foreign[0][0] in note, note
     assert [r["on_board"] for r in sim.status()["reading"]][:2] == [False, False]
+
+
+def test_a_model_trained_on_longer_descriptions_reads_them_whole(emma):
+    model, encoder = emma
+    long_winded = (
+        "If you take a careful look around the board you will notice the dog, which, as far as anyone can tell, "
+        "never moves; and you should keep in mind that it is the goal, which matters a great deal here."
+    )
+    short = model.read_manual([long_winded, "a", "b"], encoder)
+    assert int(short.mask[0, 0].sum()) == encoder.max_tokens == 36  # cut: the role is past the cut
+    longer = copy.deepcopy(model)
+    longer.config = replace(model.config, text=replace(model.config.text, max_tokens=64))
+    whole = longer.read_manual([long_winded, "a", "b"], encoder)
+    assert 36 < int(whole.mask[0, 0].sum()) < 64
+    assert encoder.keeping(64) is encoder.keeping(64) and encoder.keeping(36) is encoder

@@ -141,15 +141,17 @@ class WorldModel(nn.Module):
         if it reads no text."""
         return FrozenTextEncoder(max_tokens=self.config.text.max_tokens) if self.reads_text else None
 
-    @classmethod
     def read_manual(
-        cls, descriptions: Sequence[str], encoder: FrozenTextEncoder | None, parse: Sequence[Triple] | None = None
+        self, descriptions: Sequence[str], encoder: FrozenTextEncoder | None, parse: Sequence[Triple] | None = None
     ) -> ManualBatch:
-        """A batch-of-one ManualBatch of a manual, in the form this kind reads (the true `parse`,
-        (identity, movement, role) per description, only where a kind needs it)."""
-        if cls.reads_text and encoder is None:
-            raise ManualError(f"a {cls.kind} model reads text: it needs a text encoder")
-        return text_manual(descriptions, encoder if cls.reads_text else None)
+        """A batch-of-one ManualBatch of a manual, in the form this model reads (the true `parse`,
+        (identity, movement, role) per description, only where a kind needs it). The encoder keeps
+        as many tokens per description as this model was trained with."""
+        if self.reads_text and encoder is None:
+            raise ManualError(f"a {self.kind} model reads text: it needs a text encoder")
+        if not self.reads_text:
+            return text_manual(descriptions, None)
+        return text_manual(descriptions, encoder.keeping(self.config.text.max_tokens))
 
     def condition(self, manual: ManualBatch) -> Conditioning:
         raise NotImplementedError

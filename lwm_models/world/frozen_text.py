@@ -47,6 +47,8 @@ class FrozenTextEncoder:
     def __init__(
         self, model_path: str | None = None, max_tokens: int = 36, cache_dir: str | Path | None = DEFAULT_CACHE_DIR
     ):
+        self._given_path, self._cache_dir = model_path, cache_dir
+        self._siblings: dict[int, FrozenTextEncoder] = {}
         self.model_path = model_path or default_model_path()
         self.name = DEFAULT_ENCODER if model_path is None else Path(model_path).name
         self.max_tokens = max_tokens
@@ -66,6 +68,20 @@ class FrozenTextEncoder:
     def feature_dim(self) -> int:
         self._load()
         return int(self._model.config.hidden_size)
+
+    def keeping(self, max_tokens: int) -> FrozenTextEncoder:
+        """This encoder keeping `max_tokens` tokens per description: what a world model trained on
+        longer descriptions reads (its config's `max_tokens`). Shares the loaded text model; the
+        cache is per length, as encodings differ."""
+        if max_tokens == self.max_tokens:
+            return self
+        with self._lock:
+            sibling = self._siblings.get(max_tokens)
+            if sibling is None:
+                sibling = FrozenTextEncoder(self._given_path, max_tokens, self._cache_dir)
+                sibling._model, sibling._tokenizer = self._model, self._tokenizer
+                self._siblings[max_tokens] = sibling
+        return sibling
 
     def load(self) -> FrozenTextEncoder:
         """Load the model now rather than at the first text that is not cached (about 3-4 s): a

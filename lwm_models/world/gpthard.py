@@ -35,12 +35,11 @@ class GPTHardLWM(WorldModel):
         self._init()
         zero_init(self.v_proj)  # as in EMMA-LWM: the routed values start at zero
 
-    @classmethod
     def read_manual(
-        cls, descriptions: Sequence[str], encoder: FrozenTextEncoder | None, parse: Sequence[Triple] | None = None
+        self, descriptions: Sequence[str], encoder: FrozenTextEncoder | None, parse: Sequence[Triple] | None = None
     ) -> ManualBatch:
         batch = super().read_manual(descriptions, encoder)
-        batch.routed = torch.tensor([[cls.route(d) for d in descriptions]])
+        batch.routed = torch.tensor([[self.route(d) for d in descriptions]])
         return batch
 
     def condition(self, manual: ManualBatch) -> Conditioning:

@@ -28,9 +28,8 @@ class OracleParseLWM(WorldModel):
         self.role_emb = nn.Embedding(len(ROLES), h)
         self._init()
 
-    @classmethod
     def read_manual(
-        cls, descriptions: Sequence[str], encoder: FrozenTextEncoder | None, parse: Sequence[Triple] | None = None
+        self, descriptions: Sequence[str], encoder: FrozenTextEncoder | None, parse: Sequence[Triple] | None = None
     ) -> ManualBatch:
         batch = text_manual(descriptions, None)
         if parse is None or len(parse) != 3:

@@ -73,6 +73,7 @@ def read_identities(
         return [ID_TO_IDENTITY.get(int(model.route(d))) for d in descriptions]
     if not model.reads_text or encoder is None or not hasattr(model, "reader"):
         return [None] * len(descriptions)
+    encoder = encoder.keeping(model.config.text.max_tokens)
     was_training = model.training
     model.eval()
     mean, std = _calibration(model, encoder)
