@@ -21,7 +21,7 @@ import numpy as np
 
 from ..errors import LwmError
 from ..world.base import ManualBatch, WorldModel
-from ..world.imagine import Imagination, Policy, imagine
+from ..world.imagine import Imagination, Policy, Record, imagine
 
 
 class ImagineError(LwmError, RuntimeError):
@@ -100,7 +100,7 @@ class ServiceImaginer:
         req.update({"observation": starts.tolist()} if starts.ndim == 2 else {"observations": starts.tolist()})
         opened = self.request(req)
         sid = opened["session"]
-        out = _Trajectories(n, max_steps, starts, opened.get("manual_version", 0))
+        out = Record(np.broadcast_to(starts, (n, 4, 3)), max_steps)
         active = np.asarray(opened["active"], dtype=np.int64)
         try:
             t = 0
@@ -108,7 +108,10 @@ class ServiceImaginer:
                 t += 1
                 actions = np.asarray(policy(out.observations[active, :t], active, t), dtype=np.int64)
                 step = self.request({"op": "step", "session": sid, "actions": actions.tolist()})
-                out.add(step, actions)
+                stepped = np.asarray(step["stepped"], dtype=np.int64)
+                observations = np.asarray(step["observations"], dtype=np.uint8).reshape(-1, 4, 3)
+                rewards, dones, confidence = step["rewards"], step["dones"], step["confidence"]
+                out.put(stepped, int(step["t"]), actions, observations, rewards, dones, confidence)
                 active = np.asarray(step["active"], dtype=np.int64)
                 if step["finished"]:
                     break
@@ -117,7 +120,7 @@ class ServiceImaginer:
                 self.request({"op": "close", "session": sid})
             except (Unavailable, ImagineError):
                 pass  # the session expires on its own
-        return out.imagination()
+        return out.result(opened.get("manual_version", 0))
 
     def replay(self, starts: np.ndarray, actions: list[list[int]], max_steps: int = 32, seed: int = 0) -> Imagination:
         """One-shot: each trajectory replays its action sequence (padded with 'stay')."""
@@ -129,57 +132,13 @@ class ServiceImaginer:
                 req["constrained"] = True
             req.update({"observation": starts.tolist()} if starts.ndim == 2 else {"observations": starts.tolist()})
             answer = self.request(req)
-            out = _Trajectories(len(actions), max_steps, starts, answer.get("manual_version", 0))
+            out = Record(np.broadcast_to(starts, (len(actions), 4, 3)), max_steps)
             for i, tr in enumerate(answer["trajectories"]):
-                out.set_trajectory(i, tr)
-            return out.imagination()
+                observations = np.asarray(tr["observations"], dtype=np.uint8)
+                out.put_trajectory(i, observations, tr["actions"], tr["rewards"], tr["dones"], tr["confidence"])
+            return out.result(answer.get("manual_version", 0))
 
         return self._retrying(once)
-
-
-class _Trajectories:
-    """Imagination arrays filled from session steps (or one-shot trajectories)."""
-
-    def __init__(self, n: int, max_steps: int, starts: np.ndarray, manual_version: int) -> None:
-        steps = max_steps + 1
-        self.observations = np.zeros((n, steps, 4, 3), dtype=np.uint8)
-        self.observations[:, 0] = starts
-        self.actions = np.zeros((n, steps), dtype=np.int64)
-        self.rewards = np.zeros((n, steps), dtype=np.float32)
-        self.dones = np.zeros((n, steps), dtype=bool)
-        self.confidence = np.ones((n, steps, 1), dtype=np.float32)
-        self.lengths = np.ones(n, dtype=np.int64)
-        self.manual_version = int(manual_version)
-
-    def add(self, step: dict, actions: np.ndarray) -> None:
-        idx = np.asarray(step["stepped"], dtype=np.int64)
-        t = int(step["t"])
-        self.actions[idx, t] = actions
-        self.observations[idx, t] = np.asarray(step["observations"], dtype=np.uint8).reshape(-1, 4, 3)
-        self.rewards[idx, t] = step["rewards"]
-        self.dones[idx, t] = step["dones"]
-        self.confidence[idx, t, 0] = step["confidence"]
-        self.lengths[idx] = t + 1
-
-    def set_trajectory(self, i: int, tr: dict) -> None:
-        n = len(tr["observations"])
-        self.observations[i, :n] = np.asarray(tr["observations"], dtype=np.uint8)
-        self.actions[i, 1:n] = tr["actions"]
-        self.rewards[i, 1:n] = tr["rewards"]
-        self.dones[i, 1:n] = tr["dones"]
-        self.confidence[i, 1:n, 0] = tr["confidence"]
-        self.lengths[i] = n
-
-    def imagination(self) -> Imagination:
-        return Imagination(
-            self.observations,
-            self.actions,
-            self.rewards,
-            self.dones,
-            self.lengths,
-            self.confidence,
-            self.manual_version,
-        )
 
 
 @dataclass

@@ -41,7 +41,9 @@ class Imagination:
     """N imagined trajectories, padded to max_steps + 1 observations (index 0 is the real one).
 
     `token_probs[:, t]` holds the probability of each of block t's 14 sampled tokens (12
-    observation tokens, reward, done): the model's confidence in what it imagined.
+    observation tokens, reward, done): the model's confidence in what it imagined. Imagined
+    elsewhere (`/lwm/imagine` answers a step's confidence, not its tokens'), each of a step's 14
+    holds that step's confidence, so `confidence()` is the same on both sides.
     """
 
     observations: np.ndarray  # [N, T + 1, 4, 3] uint8
@@ -49,7 +51,7 @@ class Imagination:
     rewards: np.ndarray  # [N, T + 1] float32
     dones: np.ndarray  # [N, T + 1] bool
     lengths: np.ndarray  # [N] observations per trajectory
-    token_probs: np.ndarray  # [N, T + 1, 14] float32 ([N, T + 1, 1]: the step confidence, from a service)
+    token_probs: np.ndarray  # [N, T + 1, 14] float32
     manual_version: int = 0  # the simulator's manual version it read (0: a manual given directly)
 
     @property
@@ -271,7 +273,9 @@ def _pad_steps(uniforms: torch.Tensor, steps: int) -> torch.Tensor:
 
 
 class Record:
-    """What has been imagined of n trajectories so far: step t of trajectory i at [i, t]."""
+    """What has been imagined of n trajectories so far: step t of trajectory i at [i, t]. Filled
+    from sampled token blocks here (`write`), or from decoded steps (`put`, `put_trajectory`: what
+    `/lwm/imagine` answers)."""
 
     def __init__(self, first: np.ndarray, max_steps: int) -> None:
         n, steps = len(first), max_steps + 1
@@ -286,14 +290,31 @@ class Record:
     def write(self, which: np.ndarray, t: int, actions: np.ndarray, block: np.ndarray, probs: np.ndarray) -> np.ndarray:
         """Step t of trajectories `which` (their actions, sampled blocks and token probabilities);
         returns which of them sampled done."""
-        self.actions[which, t] = actions
-        self.observations[which, t] = tokens_to_obs(block[:, :OBS_TOKENS])
-        self.rewards[which, t] = REWARD_VALUES[block[:, OBS_TOKENS]]
         done = block[:, OBS_TOKENS + 1] == 1
-        self.dones[which, t] = done
-        self.token_probs[which, t] = probs
-        self.lengths[which] += 1
+        observations, rewards = tokens_to_obs(block[:, :OBS_TOKENS]), REWARD_VALUES[block[:, OBS_TOKENS]]
+        self.put(which, t, actions, observations, rewards, done, probs)
         return done
+
+    def put(self, which, t: int, actions, observations, rewards, dones, probs) -> None:
+        """Step t of trajectories `which`, decoded: probs [k, 14] per token, or [k] or [k, 1] a
+        step's confidence (given to each of its tokens)."""
+        self.actions[which, t] = actions
+        self.observations[which, t] = observations
+        self.rewards[which, t] = rewards
+        self.dones[which, t] = dones
+        probs = np.asarray(probs, dtype=np.float32)
+        self.token_probs[which, t] = probs if probs.ndim == 2 and probs.shape[1] > 1 else probs.reshape(-1, 1)
+        self.lengths[which] = t + 1
+
+    def put_trajectory(self, i: int, observations, actions, rewards, dones, confidence) -> None:
+        """Trajectory i whole (observations include the first; the rest one per step)."""
+        n = len(observations)
+        self.observations[i, :n] = observations
+        self.actions[i, 1:n] = actions
+        self.rewards[i, 1:n] = rewards
+        self.dones[i, 1:n] = dones
+        self.token_probs[i, 1:n] = np.asarray(confidence, dtype=np.float32).reshape(-1, 1)
+        self.lengths[i] = n
 
     def result(self, manual_version: int = 0) -> Imagination:
         return Imagination(
