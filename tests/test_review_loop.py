@@ -235,8 +235,11 @@ def test_review_loop_manual_labels_and_closed_loop_execution(encoder):
     h.loop.on_state(state)
     first = h.wait(h.plans, 1)
     assert first["manual_version"] == 1 and first["reason"] == "start"
-    # Before the plan, the agent taught itself from the manual, and said so round by round.
-    assert [(g["round"], g["done"]) for g in h.progress] == [(0, False), (1, False), (1, True)], h.progress
+    # Before the plan, the agent taught itself from the manual, and said so round by round: first
+    # that it starts, then what the world model read (round 0, roles), then each round.
+    assert [(g["round"], g["done"]) for g in h.progress] == [(0, False), (0, False), (1, False), (1, True)]
+    assert "roles" not in h.progress[0] and h.progress[1]["roles"] == h.progress[-1]["roles"]
+    assert all("movement" in entry for entry in h.progress[1]["roles"])
     assert h.progress[-1]["manual_version"] == 1 and len(h.progress[-1]["roles"]) == 3
     assert first["roles"] == h.progress[-1]["roles"]
 
