@@ -33,13 +33,6 @@ EVERY_STATE = {
     "emma": TABLE3 / "records-30-games-emma-lwm.jsonl",
     "observational": TABLE3 / "records-30-games-observational.jsonl",
 }
-TABLE3_GAMES = 30  # the games are Table 3's 30 (evenly spaced over the split); --games takes every k-th
-
-
-def game_indices(total: int, games: int) -> list[int]:
-    thirty = np.linspace(0, total - 1, min(TABLE3_GAMES, total)).round().astype(int)
-    step = max(1, len(thirty) // max(games, 1))
-    return [int(g) for g in thirty[::step][:games]]
 
 
 def run(args: argparse.Namespace) -> list[dict]:
@@ -51,6 +44,7 @@ def run(args: argparse.Namespace) -> list[dict]:
     from lwm_models.agent.policy import load_policy
     from lwm_models.agent.policy import policy_manual as read_policy_manual
     from lwm_models.agent.self_teaching import Teaching, teach
+    from lwm_models.agent.table3 import table3_games
     from lwm_models.data.dataset import TrajectoryDataset
     from lwm_models.world.checkpoint import load_checkpoint
     from lwm_models.world.frozen_text import FrozenTextEncoder
@@ -70,7 +64,7 @@ def run(args: argparse.Namespace) -> list[dict]:
         models[name] = load_checkpoint(path)
     todo = [
         (name, g, budget)
-        for g in game_indices(len(ds.games), args.games)
+        for g in table3_games(len(ds.games), args.games)
         for name in models
         for budget in args.budgets
         if (name, g, budget) not in done

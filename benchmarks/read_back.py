@@ -38,6 +38,7 @@ from lwm_models.agent.expert import role_ids  # noqa: E402
 from lwm_models.agent.imaginer import LocalImaginer  # noqa: E402
 from lwm_models.agent.learning import start_observations  # noqa: E402
 from lwm_models.agent.roles import believe  # noqa: E402
+from lwm_models.agent.table3 import TABLE3_GAMES, table3_games  # noqa: E402
 from lwm_models.data.dataset import TrajectoryDataset  # noqa: E402
 from lwm_models.messenger.constants import IDENTITIES  # noqa: E402
 from lwm_models.text import DescriptionPools  # noqa: E402
@@ -48,14 +49,7 @@ from lwm_models.world.reading import read_identities  # noqa: E402
 SPLIT = "newall-test"
 SOURCES = ("dataset", "generated", *(f"stress:{s}" for s in stress_styles()))
 OUT = ROOT / "results" / "read-back" / "summary.json"
-TABLE3_GAMES = 30
 SAID = {"chaser": "comes toward you", "fleeing": "moves away from you", "immovable": "stays put"}
-
-
-def game_indices(total: int, games: int) -> list[int]:
-    thirty = np.linspace(0, total - 1, min(TABLE3_GAMES, total)).round().astype(int)
-    step = max(1, len(thirty) // max(games, 1))
-    return [int(g) for g in thirty[::step][:games]]
 
 
 def manual_of(ds: TrajectoryDataset, game_index: int, source: str, seed: int) -> tuple[list[str], list[tuple]]:
@@ -139,7 +133,7 @@ def main() -> int:
     args = ap.parse_args()
     torch.set_num_threads(1)
     ds = TrajectoryDataset(args.data, SPLIT)
-    games = game_indices(len(ds.games), args.games)
+    games = table3_games(len(ds.games), args.games)
     names = [spec.partition("=")[0] for spec in args.models]
     records_path = args.out.with_suffix(".jsonl")
     kept = [json.loads(line) for line in records_path.open()] if records_path.is_file() else []

@@ -37,13 +37,15 @@ PAPER_IMAGINATION = {  # delta_dist, reward precision, termination precision
     "emma": ((0.57, 1.14, 1.29), (0.88, 0.69, 0.70), (0.88, 0.75, 0.71)),
     "oracle": ((0.49, 0.77, 0.92), (0.93, 0.81, 0.77), (0.89, 0.84, 0.79)),
 }
-# the shipped world models, in the paper's order: (kind, name, evaluation file)
+# the shipped world models, in the paper's order: (name in Table 3's records, kind (the paper's
+# figures), name, evaluation file)
 SHIPPED = (
-    ("observational", "Observational", "table1-2/observational.json"),
-    ("standard", "Standard", "table1-2/standard.json"),
-    ("gpthard", "GPTHard", "table1-2/gpthard.json"),
-    ("emma", "EMMA-LWM", "table1-2/emma-lwm.json"),
-    ("oracle", "OracleParse", "table1-2/oracle.json"),
+    ("observational", "observational", "Observational", "table1-2/observational.json"),
+    ("standard", "standard", "Standard", "table1-2/standard.json"),
+    ("gpthard", "gpthard", "GPTHard", "table1-2/gpthard.json"),
+    ("emma", "emma", "EMMA-LWM", "table1-2/emma-lwm.json"),
+    ("emma-freeform", "emma", "EMMA-LWM free-form", "table1-2/emma-lwm-freeform.json"),
+    ("oracle", "oracle", "OracleParse", "table1-2/oracle.json"),
 )
 TABLE3_MODELS = (("observational", "Observational"), ("emma", "EMMA-LWM"), ("oracle", "OracleParse"))
 TABLE3_SETTINGS = (("online_il", "Online IL"), ("filtered_bc", "Filtered BC"))
@@ -82,7 +84,7 @@ def _model_label(name: str, steps: int) -> str:
 # --------------------------------------------------------------------------- tables
 def table1(base: str) -> list[str]:
     lines = ["| model | NewCombo | NewAttr | NewAll | file |", "|---|---|---|---|---|"]
-    for kind, name, path in SHIPPED:
+    for _, kind, name, path in SHIPPED:
         d = _load(path)
         ce = [d["results"][s]["cross_entropy"]["total"] for s in SPLITS]
         cells = " | ".join(f"{v:.3f} [{p:.2f}]" for v, p in zip(ce, PAPER_CE[kind], strict=True))
@@ -95,7 +97,7 @@ def table2(base: str) -> list[str]:
         "| model | Delta_dist Combo / Attr / All | reward precision | termination precision |",
         "|---|---|---|---|",
     ]
-    for kind, name, path in SHIPPED:
+    for _, kind, name, path in SHIPPED:
         d = _load(path)
         im = [d["results"][s]["imagination"] for s in SPLITS]
         paper = PAPER_IMAGINATION.get(kind, (None, None, None))
@@ -113,7 +115,7 @@ def rules(base: str) -> list[str]:
         "| model | sampling | reward precision | reward recall | termination precision | termination recall |",
         "|---|---|---|---|---|---|",
     ]
-    for _, name, path in SHIPPED:
+    for _, _, name, path in SHIPPED:
         d = _load(path)
         for key, how in (("imagination", "raw"), ("imagination_constrained", "rules")):
             im = [d["results"][s][key] for s in SPLITS]
@@ -131,7 +133,7 @@ def consistency(base: str) -> list[str]:
         "| rule breaks per step |",
         "|---|---|---|---|---|---|",
     ]
-    for _, name, path in SHIPPED:
+    for _, _, name, path in SHIPPED:
         d = _load(path)
         im = [d["results"][s]["imagination"] for s in SPLITS]
         cells = [_per_split([m["reward_without_reach"] for m in im], ".2f")]
@@ -167,10 +169,10 @@ def summary(base: str) -> list[str]:
         "| real return after online imitation, NewAll, 30 games [paper] |",
         "|---|---|---|",
     ]
-    for kind, name, path in SHIPPED:
+    for key, kind, name, path in SHIPPED:
         d = _load(path)
         ce = [d["results"][s]["cross_entropy"]["total"] for s in SPLITS]
-        row = rows.get(f"online_il/{kind}")
+        row = rows.get(f"online_il/{key}")
         ret = "not measured" if row is None else _return(row["newall-test"], paper3[("online_il", kind)][2])
         lines.append(f"| {_model_label(name, d['steps'])} | {_per_split(ce, '.3f', PAPER_CE[kind])} | {ret} |")
     return lines

@@ -31,6 +31,21 @@ from .learning import (
 from .policy import EmmaPolicy
 from .policy import policy_manual as read_policy_manual
 
+TABLE3_GAMES = 30  # games per split in the tables (Table 3, human effort, read-back)
+
+
+def evenly_spaced_games(total: int, games: int) -> list[int]:
+    """The indices of `games` games evenly spaced over a split of `total` (how `lwm agent table3
+    --games` picks them)."""
+    return [int(g) for g in np.linspace(0, total - 1, min(games, total)).round().astype(int)]
+
+
+def table3_games(total: int, games: int = TABLE3_GAMES) -> list[int]:
+    """`games` of Table 3's 30 games of a split (every k-th of them), so that a shorter run is a
+    subset of the tables' games and compares with their records."""
+    thirty = evenly_spaced_games(total, TABLE3_GAMES)
+    return thirty[:: max(1, len(thirty) // max(games, 1))][:games]
+
 
 def filtered_behaviour_cloning(
     policy: EmmaPolicy,

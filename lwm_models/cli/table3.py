@@ -168,7 +168,7 @@ def run_table3(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from ..agent.policy import EmmaPolicy, load_policy
-    from ..agent.table3 import run_game
+    from ..agent.table3 import evenly_spaced_games, run_game
     from ..data.dataset import TrajectoryDataset
     from ..world.checkpoint import load_checkpoint
     from ..world.frozen_text import FrozenTextEncoder
@@ -215,7 +215,7 @@ def run_table3(args: argparse.Namespace) -> int:
     todo = []
     for split in args.splits:
         ds = TrajectoryDataset(args.data, split)
-        games = np.linspace(0, len(ds.games) - 1, min(args.games, len(ds.games))).round().astype(int)
+        games = evenly_spaced_games(len(ds.games), args.games)
         episode_games = np.asarray(ds.episode_games)
         for g in map(int, games):
             manual = ds[int(np.flatnonzero(episode_games == g)[0])].manual  # the game's first episode's
