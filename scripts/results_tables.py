@@ -381,8 +381,43 @@ def read_back(base: str) -> list[str]:
     return lines
 
 
+def read_back_summary(base: str) -> list[str]:
+    """The read-back per world model on the dataset's text, the generator's and all held-out styles
+    pooled: roles right / movements right / descriptions placed right."""
+    path = "read-back/summary.json"
+    summary = _load(path)
+    groups = (
+        ("dataset", "the dataset's"),
+        ("generated", "the generator's"),
+        ("stress:", "held-out free-form, 7 styles"),
+    )
+    lines = [
+        "| world model | " + " | ".join(label for _, label in groups) + " |",
+        "|---" * (len(groups) + 1) + "|",
+    ]
+    for key, name in LANGUAGE_MODELS:
+        by_source = summary["results"].get(key)
+        if by_source is None:
+            continue
+        cells = []
+        for prefix, _ in groups:
+            found = [c for source, c in by_source.items() if source.startswith(prefix)]
+            games = sum(c["games"] for c in found)
+            mean = {k: sum((c[k] or 0) * c["games"] for c in found) / games for k in ("roles", "movement", "identity")}
+            placed = "-" if found[0]["identity"] is None else f"{mean['identity']:.0%}"
+            cells.append(f"{mean['roles']:.0%} / {mean['movement']:.0%} / {placed}")
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    games = len(summary["settings"]["games"])
+    lines.append(
+        f"\nRoles right (per game) / movements right (per entity) / descriptions placed on the right entity, "
+        f"{games} NewAll test games; {_link(path, base)}."
+    )
+    return lines
+
+
 TABLES: dict[str, Callable[[str], list[str]]] = {
     "effort": effort,
+    "read-back-summary": read_back_summary,
     "language": language,
     "read-back": read_back,
     "summary": summary,

@@ -21,6 +21,7 @@ PER_CHUNK = {"max_minutes", "progress", "tensorboard"}
 # recipe -> shipped checkpoint; oracle-long is the stopped long run of OracleParse, not shipped
 SHIPPED = {
     "emma-lwm": "emma-lwm",
+    "emma-lwm-freeform": "emma-lwm-freeform",
     "observational": "observational",
     "standard": "standard",
     "gpthard": "gpthard",
@@ -43,7 +44,7 @@ def test_every_shipped_checkpoint_has_its_recipe():
     assert {p.name for p in CHECKPOINTS.iterdir() if (p / "config.json").is_file()} == set(SHIPPED.values())
 
 
-@pytest.mark.parametrize("name", ["emma-lwm", "observational", "standard", "gpthard", "oracle"])
+@pytest.mark.parametrize("name", ["emma-lwm", "emma-lwm-freeform", "observational", "standard", "gpthard", "oracle"])
 def test_a_world_model_recipe_parses_to_what_its_checkpoint_was_trained_with(name, tmp_path):
     from lwm_models.world.train import TrainArgs
 
