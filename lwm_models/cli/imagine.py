@@ -36,7 +36,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--checkpoint",
         type=checkpoint_dir,
         default=None,
-        help="checkpoint directory (default: the shipped EMMA-LWM free-form)",
+        help="checkpoint directory (default: shipped EMMA-LWM)",
     )
     p.add_argument("--split", choices=SPLITS, default="newall-test", metavar="SPLIT", help="split of the game")
     p.add_argument("--index", type=nonnegative_int, default=0, help="game index in the split")
@@ -80,9 +80,9 @@ def run(args: argparse.Namespace) -> int:
     from ..messenger.render import render_ascii, render_trajectory_png
     from ..world.checkpoint import load_checkpoint
     from ..world.imagine import imagine
-    from ..world.shipped import default_world_model
+    from ..world.shipped import shipped_checkpoint
 
-    path = args.checkpoint or default_world_model()
+    path = args.checkpoint or shipped_checkpoint("emma")
     model, config = load_checkpoint(path)
     engine = BatchedMessenger(max_steps=args.max_steps)
     engine.reset([game], [args.seed])

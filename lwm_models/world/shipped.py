@@ -11,10 +11,6 @@ SHIPPED = {"emma": CHECKPOINT_DIR / "emma-lwm", "observational": CHECKPOINT_DIR 
 SHIPPED_ORACLE = CHECKPOINT_DIR / "oracle"
 """OracleParse, Table 3's reference: it reads the game's true parse, not a manual, so the simulator
 (which is given only descriptions) does not serve it."""
-SHIPPED_FREEFORM = CHECKPOINT_DIR / "emma-lwm-freeform"
-"""EMMA-LWM fine-tuned to read manuals in a person's own words (configs/emma-lwm-freeform.json,
-docs/language.md): what the system serves by default (`default_world_model`). The tables that
-reproduce the paper keep `emma-lwm`, the model trained on the dataset's descriptions alone."""
 SHIPPED_POLICY = CHECKPOINT_DIR / "policy-bc"
 """The agent's warm-start policy (behaviour cloning on the training games), if shipped."""
 
@@ -24,11 +20,3 @@ def shipped_checkpoint(kind: str = "emma") -> Path:
     if path is None or not (path / "config.json").is_file():
         raise LwmError(f"no shipped {kind!r} checkpoint in {CHECKPOINT_DIR}; train one with 'lwm train'")
     return path
-
-
-def default_world_model() -> Path:
-    """The world model the simulator serves unless told otherwise: the free-form EMMA-LWM when
-    shipped, else EMMA-LWM."""
-    if (SHIPPED_FREEFORM / "config.json").is_file():
-        return SHIPPED_FREEFORM
-    return shipped_checkpoint("emma")

@@ -37,7 +37,7 @@ from .frozen_text import FrozenTextEncoder
 from .imagine import Imagination, Rollout, condition_rows
 from .manual import ManualBatch
 from .reading import grounding, read_identities, ungrounded_note
-from .shipped import default_world_model
+from .shipped import shipped_checkpoint
 
 
 class RequestError(LwmError, ValueError):
@@ -60,7 +60,7 @@ class Simulator:
         max_sessions: int = 32,
         session_ttl: float = 300.0,
     ) -> None:
-        self.checkpoint = Path(checkpoint) if checkpoint else default_world_model()
+        self.checkpoint = Path(checkpoint) if checkpoint else shipped_checkpoint("emma")
         self.model, self.config = load_checkpoint(self.checkpoint)
         self.kind = self.config["kind"]
         if self.model.needs_parse:

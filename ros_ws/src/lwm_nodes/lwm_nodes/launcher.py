@@ -272,9 +272,7 @@ def describe_run(log_dir: Path, ledger: Path, state: Path, resumed: bool) -> str
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="run_nodes.sh", description="Start the LWM system's nodes.")
-    parser.add_argument(
-        "--checkpoint", default="", help="world model for the simulator (default: the shipped EMMA-LWM free-form)"
-    )
+    parser.add_argument("--checkpoint", default="", help="world model for the simulator (default: shipped EMMA-LWM)")
     parser.add_argument("--split", default="newall-test", help="split of the game the environment runs")
     parser.add_argument("--index", type=int, default=0, help="game index in the split")
     parser.add_argument("--seed", type=int, default=0, help="episode seed")
