@@ -64,7 +64,8 @@ class SplitTokens:
         self.lengths = np.diff(self.offsets)
         self.manuals = np.asarray(self.ds.manuals, dtype=np.int64)
         self.texts: list[str] = list(self.ds.texts)
-        self.parse_codes = TRIPLE_CODES[np.asarray(self.ds.parses, dtype=np.int64)]  # [E, 3, 3]
+        self.parses = np.asarray(self.ds.parses, dtype=np.int64)  # [E, 3] triple indices
+        self.parse_codes = TRIPLE_CODES[self.parses]  # [E, 3, 3]
         self.features = self.text_lengths = None
         if encoder is not None:
             feats, lengths = encoder.encode_arrays(self.texts)
@@ -110,7 +111,7 @@ class SplitTokens:
         text_ids = self.manuals[episodes].copy()  # [B, 3]
         if self.mix_prob <= 0:
             return text_ids
-        triples = np.asarray(self.ds.parses, dtype=np.int64)[episodes]
+        triples = self.parses[episodes]
         counts = self.mix_counts[triples]
         pick = (rng.random(text_ids.shape) * np.maximum(counts, 1)).astype(np.int64)
         swap = (rng.random(text_ids.shape) < self.mix_prob) & (counts > 0)

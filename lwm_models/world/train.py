@@ -162,7 +162,7 @@ def _save_train_state(
 
 
 def _split_triples(data: SplitTokens) -> list:
-    return [ALL_TRIPLES[i] for i in np.unique(np.asarray(data.ds.parses))]
+    return [ALL_TRIPLES[i] for i in np.unique(data.parses)]
 
 
 def _mix_texts(data: SplitTokens, args: TrainArgs) -> dict:
