@@ -39,6 +39,7 @@ from lwm_models.agent.imaginer import LocalImaginer  # noqa: E402
 from lwm_models.agent.learning import start_observations  # noqa: E402
 from lwm_models.agent.roles import believe  # noqa: E402
 from lwm_models.agent.table3 import TABLE3_GAMES, table3_games  # noqa: E402
+from lwm_models.agent.understood import SAID_OF  # noqa: E402
 from lwm_models.data.dataset import TrajectoryDataset  # noqa: E402
 from lwm_models.messenger.constants import IDENTITIES  # noqa: E402
 from lwm_models.text import DescriptionPools  # noqa: E402
@@ -49,7 +50,6 @@ from lwm_models.world.reading import read_identities  # noqa: E402
 SPLIT = "newall-test"
 SOURCES = ("dataset", "generated", *(f"stress:{s}" for s in stress_styles()))
 OUT = ROOT / "results" / "read-back" / "summary.json"
-SAID = {"chaser": "comes toward you", "fleeing": "moves away from you", "immovable": "stays put"}
 
 
 def manual_of(ds: TrajectoryDataset, game_index: int, source: str, seed: int) -> tuple[list[str], list[tuple]]:
@@ -73,7 +73,7 @@ def score(model, encoder, ds: TrajectoryDataset, game_index: int, source: str, s
     imaginer = LocalImaginer(model, model.read_manual(manual, encoder, triples))
     belief = believe(imaginer, start_observations(game, seed), samples, seed)
     truth = {IDENTITIES[e.identity]: e for e in game.entities}
-    movement = [belief.movements.get(i) == SAID[e.movement] for i, e in truth.items()]
+    movement = [belief.movements.get(i) == SAID_OF[e.movement] for i, e in truth.items()]
     read = read_identities(model, encoder, manual)
     return {
         "game": game_index,

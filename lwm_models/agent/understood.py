@@ -20,6 +20,8 @@ import numpy as np
 from ..messenger.constants import ID_TO_IDENTITY, REWARD_DEATH, REWARD_PICKUP, REWARD_WIN
 
 AVATAR = 3  # the avatar's channel in a compact observation
+SAID_OF = {"chaser": "comes toward you", "fleeing": "moves away from you", "immovable": "stays put"}
+"""What the read-back says of an entity imagined moving as each of the game's movements does."""
 
 
 def read_back(observations: np.ndarray, rewards: np.ndarray, lengths: np.ndarray) -> list[dict]:
@@ -95,11 +97,11 @@ def _contact(reward: float) -> str | None:
 def _movement(closer: int, farther: int, still: int) -> str:
     moves = closer + farther
     if moves == 0:
-        return "stays put" if still else "not seen"
+        return SAID_OF["immovable"] if still else "not seen"
     if closer >= 2 * max(farther, 1):
-        return "comes toward you"
+        return SAID_OF["chaser"]
     if farther >= 2 * max(closer, 1):
-        return "moves away from you"
+        return SAID_OF["fleeing"]
     return "moves, no clear direction"
 
 
@@ -120,7 +122,7 @@ def describe(entry: dict) -> str:
     moves = entry["closer"] + entry["farther"]
     movement = entry["movement"]
     if moves:
-        toward = entry["closer"] if movement != "moves away from you" else entry["farther"]
+        toward = entry["closer"] if movement != SAID_OF["fleeing"] else entry["farther"]
         movement += f" ({toward} of {moves} moves)"
     role = entry["role"]
     if role != "not seen":
@@ -149,4 +151,4 @@ def believed(roles: list[dict]) -> str:
     return "the agent acts on: " + read_roles(roles)
 
 
-__all__ = ["believed", "describe", "read_back", "read_roles"]
+__all__ = ["SAID_OF", "believed", "describe", "read_back", "read_roles"]
