@@ -42,9 +42,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from lwm_models.messenger.constants import ALL_TRIPLES  # noqa: E402
-from lwm_models.text import DescriptionPools  # noqa: E402
 from lwm_models.text.parser import parse_description  # noqa: E402
-from lwm_models.text.stress import stress_pools, stress_styles  # noqa: E402
+from lwm_models.text.stress import manual_sources, source_pools  # noqa: E402
 from lwm_models.world.batches import SplitTokens, redraw_manuals  # noqa: E402
 from lwm_models.world.checkpoint import load_checkpoint  # noqa: E402
 from lwm_models.world.evaluate import evaluate_model  # noqa: E402
@@ -52,21 +51,16 @@ from lwm_models.world.frozen_text import FrozenTextEncoder  # noqa: E402
 
 SPLIT = "newall-test"
 MODELS = ("emma-lwm", "gpthard", "observational")
-SOURCES = ("dataset", "generated", *(f"stress:{s}" for s in stress_styles()))
+SOURCES = manual_sources()
 OUT = ROOT / "results" / "language-robustness" / "summary.json"
 
 
 def split_with_manuals(data_dir: Path, source: str, encoder, router, seed: int) -> SplitTokens:
     """NewAll test with its manuals drawn from `source` (encoded for the model)."""
-    if source == "dataset":
+    pools = source_pools(source, seed)
+    if pools is None:
         return SplitTokens(data_dir, SPLIT, encoder, router)
     data = SplitTokens(data_dir, SPLIT, None, router)
-    if source == "generated":
-        pools = DescriptionPools.generated(seed=seed)
-    elif source.startswith("stress:"):
-        pools = stress_pools(source.split(":", 1)[1])
-    else:
-        raise SystemExit(f"unknown source {source!r}; known: {', '.join(SOURCES)}")
     redraw_manuals(data, pools, encoder, seed)
     return data
 

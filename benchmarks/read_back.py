@@ -42,22 +42,21 @@ from lwm_models.agent.table3 import TABLE3_GAMES, table3_games  # noqa: E402
 from lwm_models.agent.understood import SAID_OF  # noqa: E402
 from lwm_models.data.dataset import TrajectoryDataset  # noqa: E402
 from lwm_models.messenger.constants import IDENTITIES  # noqa: E402
-from lwm_models.text import DescriptionPools  # noqa: E402
-from lwm_models.text.stress import stress_pools, stress_styles  # noqa: E402
+from lwm_models.text.stress import manual_sources, source_pools  # noqa: E402
 from lwm_models.world.checkpoint import load_checkpoint  # noqa: E402
 from lwm_models.world.reading import read_identities  # noqa: E402
 
 SPLIT = "newall-test"
-SOURCES = ("dataset", "generated", *(f"stress:{s}" for s in stress_styles()))
+SOURCES = manual_sources()
 OUT = ROOT / "results" / "read-back" / "summary.json"
 
 
 def manual_of(ds: TrajectoryDataset, game_index: int, source: str, seed: int) -> tuple[list[str], list[tuple]]:
     """The game's manual from `source` and the true triple of each description."""
     episode = ds[int(np.flatnonzero(np.asarray(ds.episode_games) == game_index)[0])]
-    if source == "dataset":
+    pools = source_pools(source, seed)
+    if pools is None:
         return list(episode.manual), list(episode.parse)
-    pools = DescriptionPools.generated(seed=seed) if source == "generated" else stress_pools(source.split(":", 1)[1])
     rng = np.random.default_rng([seed, game_index])
     triples = list(episode.parse)  # the dataset's order of the entities, re-worded
     return pools.draw(SPLIT, triples, rng), triples

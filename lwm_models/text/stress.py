@@ -85,3 +85,21 @@ def stress_pools(style: str, part: str = "heldout", path: str | Path = STRESS_FI
         for split in receiving_splits(triple):
             pools[split][triple] = tuple(by_triple[triple])
     return DescriptionPools(pools, f"stress:{part}:{style}")
+
+
+def manual_sources(path: str | Path = STRESS_FILE) -> tuple[str, ...]:
+    """Where a benchmark's manuals can come from: "dataset" (the dataset's own descriptions),
+    "generated" (the project's generator), "stress:STYLE" (one style of the held-out part)."""
+    return ("dataset", "generated", *(f"stress:{style}" for style in stress_styles(path)))
+
+
+def source_pools(source: str, seed: int = 0) -> DescriptionPools | None:
+    """The pools to re-draw manuals from for `source` (`manual_sources`); None for "dataset", whose
+    manuals stay the dataset's."""
+    if source == "dataset":
+        return None
+    if source == "generated":
+        return DescriptionPools.generated(seed=seed)
+    if source.startswith("stress:"):
+        return stress_pools(source.split(":", 1)[1])
+    raise LwmError(f"unknown manual source {source!r}; known: {', '.join(manual_sources())}")
