@@ -88,3 +88,4 @@ def test_a_model_trained_on_longer_descriptions_reads_them_whole(emma):
     whole = longer.read_manual([long_winded, "a", "b"], encoder)
     assert 36 < int(whole.mask[0, 0].sum()) < 64
     assert encoder.keeping(64) is encoder.keeping(64) and encoder.keeping(36) is encoder
+    assert encoder.keeping(64)._model is encoder._model  # one text model in memory, whichever length

@@ -49,6 +49,7 @@ class FrozenTextEncoder:
     ):
         self._given_path, self._cache_dir = model_path, cache_dir
         self._siblings: dict[int, FrozenTextEncoder] = {}
+        self._source: FrozenTextEncoder | None = None  # the encoder a `keeping` sibling loads through
         self.model_path = model_path or default_model_path()
         self.name = DEFAULT_ENCODER if model_path is None else Path(model_path).name
         self.max_tokens = max_tokens
@@ -79,7 +80,7 @@ class FrozenTextEncoder:
             sibling = self._siblings.get(max_tokens)
             if sibling is None:
                 sibling = FrozenTextEncoder(self._given_path, max_tokens, self._cache_dir)
-                sibling._model, sibling._tokenizer = self._model, self._tokenizer
+                sibling._source = self
                 self._siblings[max_tokens] = sibling
         return sibling
 
@@ -90,6 +91,10 @@ class FrozenTextEncoder:
         return self
 
     def _load(self) -> None:
+        if self._model is None and self._source is not None:
+            # One text model in memory whichever length loads it first.
+            self._source._load()
+            self._model, self._tokenizer = self._source._model, self._source._tokenizer
         if self._model is None:
             os.environ.setdefault("HF_HUB_OFFLINE", "1")
             os.environ.setdefault("TRANSFORMERS_OFFLINE", "1")
