@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Start the LWM system: set up .venv if needed, then launch the nodes under a supervisor
-# (lwm_nodes.launcher): the Messenger environment, the LWM simulator serving /lwm/imagine on the
+# (lwm_nodes.launcher): the Messenger environment, the world-model server serving /lwm/imagine on the
 # shipped EMMA-LWM, the planner and, in a terminal, the interactive human-feedback node.
 # --scripted runs the review loop with the simulated human and exits with a summary.
 # Options: ./run_nodes.sh --help. Stop with Ctrl-C.

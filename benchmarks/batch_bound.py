@@ -4,10 +4,10 @@
 
 `ros_stress.py load` asks that 8 clients get >= 5x the calls per second of one. This runs the
 same calls (`ros_stress.imagine_request`, under the environment node's first manual) through the
-simulator's `ContinuousBatch` as closed loops: N clients, each starting its next call the moment
+world-model server's `ContinuousBatch` as closed loops: N clients, each starting its next call the moment
 its last one ends, against one client doing the same. No ROS, no pipes, no JSON, no round trips:
 what is left is the model's steps and the batch's own work (admitting calls, rows joining and
-leaving the KV cache), on one core as in the simulator's worker process. Whatever ratio this
+leaving the KV cache), on one core as in the world-model server's worker process. Whatever ratio this
 prints is an upper bound for the real system's, apart from the per-call costs of the one client
 that batching hides (which is why the real system can exceed it a little).
 
@@ -30,10 +30,10 @@ from ros_stress import imagine_request  # noqa: E402  (the load benchmark's requ
 
 from lwm_models.data.session import GameSession  # noqa: E402
 from lwm_models.world.continuous import ContinuousBatch  # noqa: E402
-from lwm_models.world.simulator import Simulator  # noqa: E402
+from lwm_models.world.model_server import WorldModelServer  # noqa: E402
 
 
-def closed_loop(sim: Simulator, clients: int, calls: int) -> dict:
+def closed_loop(sim: WorldModelServer, clients: int, calls: int) -> dict:
     """`clients` calls in flight until `calls` have ended; calls/s, steps/s and ms per batch step."""
     batch = ContinuousBatch(sim.model)
     numbers = iter(range(10**9))
@@ -46,8 +46,8 @@ def closed_loop(sim: Simulator, clients: int, calls: int) -> dict:
         t = time.perf_counter()
         done = batch.step()
         stepping += time.perf_counter() - t
-        for track in done:
-            track.result()
+        for shot in done:
+            shot.result()
             batch.admit(sim.one_shot(imagine_request(next(numbers))))
         ended += len(done)
     wall = time.perf_counter() - began
@@ -68,8 +68,8 @@ def main() -> None:
     args = parser.parse_args()
     if args.clients < 1 or args.calls < 1 or args.repeats < 1:
         parser.error("--clients, --calls and --repeats must be >= 1")
-    torch.set_num_threads(1)  # the simulator's worker process runs one thread
-    sim = Simulator(args.checkpoint)
+    torch.set_num_threads(1)  # the world-model server's worker process runs one thread
+    sim = WorldModelServer(args.checkpoint)
     game = GameSession("newall-test", 0, None, 32)  # what the environment node starts with
     game.reset(0)
     sim.set_manual(game.manual()["descriptions"])

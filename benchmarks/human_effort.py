@@ -55,9 +55,20 @@ def run(args: argparse.Namespace) -> list[dict]:
     warm = load_policy(args.policy or SHIPPED_POLICY)
     ds = TrajectoryDataset(args.data, args.split)
     episode_games = np.asarray(ds.episode_games)
+    batch = {"batch": args.batch} if args.batch else {}
+    setting = {
+        k: v
+        for k, v in Teaching(args.rounds, args.episodes, args.grad_steps, **batch).__dict__.items()
+        if k not in ("label_budget", "per_round")
+    }
     done = set()
     if args.records and args.records.is_file():
-        done = {(r["model"], r["game"], r["budget"]) for r in map(json.loads, args.records.open()) if r}
+        earlier = [r for r in map(json.loads, args.records.open()) if r]
+        other = [r for r in earlier if r.get("teaching") != setting]
+        if other:  # one file, one teaching setting: resuming must not mix two into one summary
+            theirs = other[0].get("teaching")
+            sys.exit(f"{args.records} holds records of another teaching setting ({theirs}); use another --records")
+        done = {(r["model"], r["game"], r["budget"]) for r in earlier}
     models = {}
     for spec in args.models:
         name, _, path = spec.partition("=")
@@ -84,7 +95,9 @@ def run(args: argparse.Namespace) -> list[dict]:
         policy_manual = read_policy_manual(manual, encoder)
         policy = copy.deepcopy(warm)
         per_round = max(Teaching.per_round, -(-budget // args.rounds))  # a large budget can be spent
-        teaching = Teaching(args.rounds, args.episodes, args.grad_steps, label_budget=budget, per_round=per_round)
+        teaching = Teaching(
+            args.rounds, args.episodes, args.grad_steps, label_budget=budget, per_round=per_round, **batch
+        )
         began = time.perf_counter()
         result = teach(policy, imaginer, policy_manual, start_observations(game, seed), teaching, person, seed)
         waited = time.perf_counter() - began
@@ -226,6 +239,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--rounds", type=int, default=10)
     p.add_argument("--episodes", type=int, default=32)
     p.add_argument("--grad-steps", type=int, default=20)
+    p.add_argument("--batch", type=int, default=None, help="labelled states per minibatch step (default: Teaching's)")
     p.add_argument("--policy", type=Path, default=None, help="warm-start policy (default: shipped)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--threads", type=int, default=1, help="torch threads (1: records reproduce)")

@@ -30,7 +30,7 @@ from lwm_models.messenger.engine import BatchedMessenger
 from lwm_models.text import DescriptionPools
 from lwm_models.world.checkpoint import load_checkpoint
 from lwm_models.world.gpt import DecoderConfig
-from lwm_models.world.imagine import Rollout, imagine
+from lwm_models.world.imagine import StepwiseImagination, imagine
 from lwm_models.world.shipped import shipped_checkpoint
 from lwm_models.world.tokens import BLOCK, DONE_VOCAB, OBS_TOKENS, OBS_VOCAB, REWARD_VOCAB
 
@@ -115,7 +115,9 @@ def main() -> None:
 
     def calls_per_step(n: int) -> float:
         actions = np.random.default_rng(0).integers(5, size=(n, STEPS))
-        rollout = Rollout(model, batch, first, n=n, max_steps=STEPS, seed=0, stop_on_done=False, decoding="speculative")
+        rollout = StepwiseImagination(
+            model, batch, first, n=n, max_steps=STEPS, seed=0, stop_on_done=False, decoding="speculative"
+        )
         for t in range(STEPS):
             rollout.step(actions[:, t])
         return rollout._rows.calls / STEPS

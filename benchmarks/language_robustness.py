@@ -44,10 +44,10 @@ sys.path.insert(0, str(ROOT))
 from lwm_models.messenger.constants import ALL_TRIPLES  # noqa: E402
 from lwm_models.text.parser import parse_description  # noqa: E402
 from lwm_models.text.stress import manual_sources, source_pools  # noqa: E402
-from lwm_models.world.batches import SplitTokens, redraw_manuals  # noqa: E402
 from lwm_models.world.checkpoint import load_checkpoint  # noqa: E402
 from lwm_models.world.evaluate import evaluate_model  # noqa: E402
 from lwm_models.world.frozen_text import FrozenTextEncoder  # noqa: E402
+from lwm_models.world.training_data import SplitTokens, redraw_manuals  # noqa: E402
 
 SPLIT = "newall-test"
 MODELS = ("emma-lwm", "gpthard", "observational")

@@ -28,7 +28,7 @@ from lwm_models.data.dataset import TrajectoryDataset
 from lwm_models.messenger.engine import BatchedMessenger
 from lwm_models.world.checkpoint import load_checkpoint
 from lwm_models.world.frozen_text import FrozenTextEncoder
-from lwm_models.world.shipped import SHIPPED, SHIPPED_POLICY
+from lwm_models.world.shipped import SHIPPED_POLICY, shipped_checkpoint
 
 TARGET_S = 60.0
 
@@ -41,11 +41,27 @@ def main() -> None:
     parser.add_argument("--iterations", type=int, default=Budget.iterations, help="online imitation rounds")
     parser.add_argument("--episodes", type=int, default=Budget.episodes, help="imagined episodes per round")
     parser.add_argument("--grad-steps", type=int, default=Budget.grad_steps, help="minibatch steps per round")
+    parser.add_argument("--batch", type=int, default=Budget.batch, help="labelled states per minibatch step")
+    parser.add_argument(
+        "--overlap", action="store_true", help="imagine round u+1 while learning from round u (Budget.overlap)"
+    )
     parser.add_argument("--threads", type=int, default=0, help="torch threads (0: torch's default)")
+    parser.add_argument(
+        "--models",
+        nargs="+",
+        default=["emma", "observational"],
+        help="shipped world models, by key (lwm_models/world/shipped.py)",
+    )
     args = parser.parse_args()
     if args.threads:
         torch.set_num_threads(args.threads)
-    budget = Budget(iterations=args.iterations, episodes=args.episodes, grad_steps=args.grad_steps)
+    budget = Budget(
+        iterations=args.iterations,
+        episodes=args.episodes,
+        grad_steps=args.grad_steps,
+        batch=args.batch,
+        overlap=args.overlap,
+    )
 
     encoder = FrozenTextEncoder()
     warm = load_policy(SHIPPED_POLICY) if (SHIPPED_POLICY / "config.json").is_file() else EmmaPolicy().eval()
@@ -53,10 +69,11 @@ def main() -> None:
     games = np.linspace(0, len(ds.games) - 1, args.games).round().astype(int)
     print(
         f"{args.split}, {args.games} games, online imitation {budget.iterations} rounds x {budget.episodes} imagined "
-        f"episodes, {budget.grad_steps} steps each; torch threads {torch.get_num_threads()}"
+        f"episodes, {budget.grad_steps} steps of {budget.batch} each{', overlapped' if budget.overlap else ''}; "
+        f"torch threads {torch.get_num_threads()}"
     )
-    for kind, path in SHIPPED.items():
-        world, config = load_checkpoint(path)
+    for kind in args.models:
+        world, config = load_checkpoint(shipped_checkpoint(kind))
         times = {"manual": [], "corrections": [], "online_il": []}
         returns = {"warm": [], "online_il": []}
         for g in games:
@@ -67,7 +84,7 @@ def main() -> None:
             first = engine.compact_observation()[0]
             # The agent starts with a wrong manual (the descriptions in the wrong order): the
             # person's language feedback is the true one.
-            # In process: the world model and its manual behind the same interface as the simulator.
+            # In process: the world model and its manual behind the same interface as the world-model server.
             imaginer = LocalImaginer(world, world.read_manual(list(reversed(manual)), encoder))
             agent = PlanReviewAgent(copy.deepcopy(warm), encoder, imaginer, list(reversed(manual)))
             starts = start_observations(game, int(g))

@@ -7,7 +7,7 @@ approved plan's shown trajectory died, time from feedback to the revised plan pe
 (p50, max; language feedback: the reviewer's first answer is the true manual in other words),
 the reviewer's effort per game next to its return (labels asked and given, corrected steps,
 manuals written; `--teach none`: the manual is all the reviewer gives),
-the /lwm/imagine calls and their overhead over the simulator's own time, and the
+the /lwm/imagine calls and their overhead over the world-model server's own time, and the
 comparison with Table 3's online-imitation records on the same games (results/table3/records-10-games-emma-lwm.jsonl,
 the shipped EMMA-LWM's).
 
@@ -40,7 +40,7 @@ from lwm_models.world.shipped import SHIPPED  # noqa: E402
 
 TEXTS = ROOT.parent / "shared" / "data" / "messenger-texts"
 SPOKEN = re.compile(r"manual feedback on plan \d+ at ([\d.]+)")
-STATS = re.compile(r"imagine calls (\d+), round trip ([\d.]+) s, simulator ([\d.]+) s")
+STATS = re.compile(r"imagine calls (\d+), round trip ([\d.]+) s, world-model server ([\d.]+) s")
 
 
 def run_game(index: int, seed: int, args, work: Path) -> dict:
@@ -198,11 +198,11 @@ def main() -> int:
         over = sum(x["imagine_round_trip_s"] - x["imagine_server_s"] for x in calls)
         server = sum(x["imagine_server_s"] for x in calls)
         print(
-            f"/lwm/imagine: {c} calls, overhead {over:.1f} s over {server:.1f} s in the simulator "
+            f"/lwm/imagine: {c} calls, overhead {over:.1f} s over {server:.1f} s in the world-model server "
             f"({over / c * 1000:.2f} ms per call, {over / server:.1%})"
         )
     if args.records.is_file():
-        # Only records of the world model the simulator served (the shipped EMMA-LWM's weights).
+        # Only records of the world model the world-model server served (the shipped EMMA-LWM's weights).
         shipped = json.loads((SHIPPED["emma"] / "config.json").read_text())["sha256"]
         table = {
             rec["game"]: rec["return"]

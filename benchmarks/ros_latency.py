@@ -6,7 +6,7 @@ node and of this client (default: events).
 
     .venv/bin/python benchmarks/ros_latency.py [--checkpoint DIR] [--calls 200]
 
-The simulator node runs in its own process; this script is the client. The imagine request is
+The world-model server node runs in its own process; this script is the client. The imagine request is
 a one-step, one-trajectory imagination, so the ROS share of the time is what dominates.
 """
 
@@ -37,7 +37,7 @@ from lwm_nodes.ros_cli import BackgroundSpin  # noqa: E402
 from std_msgs.msg import String  # noqa: E402
 
 from lwm_models import messages  # noqa: E402
-from lwm_models.world.simulator import Simulator  # noqa: E402
+from lwm_models.world.model_server import WorldModelServer  # noqa: E402
 
 MANUAL = [
     "the plane is the deadly enemy and it chases you.",
@@ -79,7 +79,7 @@ def main() -> None:
     parser.add_argument("--calls", type=int, default=200)
     args = parser.parse_args()
     ros_environment()
-    sim_cmd = [sys.executable, "-m", "lwm_nodes.simulator_node"]
+    sim_cmd = [sys.executable, "-m", "lwm_nodes.world_model_node"]
     if args.checkpoint:
         sim_cmd += ["--ros-args", "-p", f"checkpoint:={args.checkpoint}", "-p", "follow_env_manual:=false"]
     procs = [
@@ -91,15 +91,15 @@ def main() -> None:
             if line.startswith("READY"):
                 break
     try:
-        # In-process: the same Simulator the node wraps, the same validated JSON in and out.
-        sim = Simulator(args.checkpoint)
+        # In-process: the same WorldModelServer the node wraps, the same validated JSON in and out.
+        sim = WorldModelServer(args.checkpoint)
         text = json.dumps(REQUEST)
 
         rclpy.init()
         node = rclpy.create_node("bench_client")
         spinner = BackgroundSpin(node)
         client = node.create_client(Json, "/lwm/imagine")
-        assert client.wait_for_service(timeout_sec=30), "simulator not available"
+        assert client.wait_for_service(timeout_sec=30), "world-model server not available"
         # Interleaved, so that both see the same machine: the overhead is the median of the
         # paired differences (round trip minus the in-process call just before it).
         local, remote = [], []

@@ -8,7 +8,7 @@
 load: `/lwm/imagine` from one client process, then from N client processes at once (each call:
 one trajectory replaying 4 actions, padded with "stay" to 32 steps, until the imagined episode
 ends; the one client's calls are a random sample of the N clients'), against the launcher's
-system without a human (environment, simulator, planner). Prints calls/s, imagined steps/s and
+system without a human (environment, world-model server, planner). Prints calls/s, imagined steps/s and
 p50/p99 latency of both, their ratios (target: N=8 clients get >= 5x the throughput of one,
 p99 < 1 s, 0 failures), and the latency of `/env/reset` probed during the load (the other nodes
 still answer).
@@ -19,7 +19,7 @@ service the nodes read, paced so that none is dropped by a queue. Target: 0 cras
 still running and answering), every payload reported on /lwm/errors (topics) or answered with an
 error (services), and the nodes' memory before and after.
 
-kill: `kill -9` of each node in turn (simulator, planner, environment, human) during a scripted
+kill: `kill -9` of each node in turn (world-model server, planner, environment, human) during a scripted
 review. Target: the launcher restarts each, the review resumes and ends with its summary, SQLite's
 integrity_check is ok, and no ledger record is lost or doubled (plans numbered without gaps or
 repeats, one decision per plan and decision, one label answer per request, one report).
@@ -128,14 +128,14 @@ class System:
 
     def node_pids(self) -> dict[str, int]:
         """PID of each node process (the launcher's children), by node module, and of the
-        simulator's batch worker processes (its children: "worker", "worker 2", ...)."""
+        world-model server's batch worker processes (its children: "worker", "worker 2", ...)."""
         pids = {}
         for pid, cmd in _children(self.proc.pid):
             for name in ("env_node", "simulator_node", "planner_node", "human_node"):
                 if f"lwm_nodes.{name}" in cmd:
                     pids[name.removesuffix("_node")] = pid
-        if "simulator" in pids:
-            workers = [pid for pid, cmd in _children(pids["simulator"]) if "lwm_models.world.batch_worker" in cmd]
+        if "world_model" in pids:
+            workers = [pid for pid, cmd in _children(pids["world_model"]) if "lwm_models.world.imagine_worker" in cmd]
             pids.update({"worker" if i == 0 else f"worker {i + 1}": pid for i, pid in enumerate(sorted(workers))})
         return pids
 
@@ -439,7 +439,7 @@ def ledger_problems(path: Path) -> list[str]:
 
 def cmd_kill(args: argparse.Namespace) -> int:
     system = System(["--iterations", str(args.iterations)], human="--scripted", restarts=4)
-    order = ["simulator", "planner", "env", "human"]
+    order = ["world_model", "planner", "env", "human"]
     log = []
     try:
         for name in order:

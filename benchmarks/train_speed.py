@@ -44,7 +44,7 @@ CHILD = r"""
 import json, sys, time
 from dataclasses import replace
 import numpy as np, torch
-from lwm_models.world.batches import SplitTokens
+from lwm_models.world.training_data import SplitTokens
 from lwm_models.world.base import WorldModelConfig
 from lwm_models.world.registry import PRESETS, build_model
 from lwm_models.world.train import _param_groups, batch_loss

@@ -1,6 +1,6 @@
 """Where a run of the system keeps what it writes: one directory per run.
 
-A run (one `./run_nodes.sh`) writes its review ledger, the simulator's current manual, the
+A run (one `./run_nodes.sh`) writes its review ledger, the world-model server's current manual, the
 planner's policy snapshots and every node's log into a directory of its own, `logs/runs/<time>`,
 and `logs/latest` points at the newest. So a second run starts clean: it does not resume the
 reviews, the manual or the learnt policy of the first. `--resume` continues an earlier run's
@@ -19,9 +19,17 @@ from urllib.parse import quote
 LOGS = Path(os.environ.get("LWM_LOGS", "logs"))
 LATEST = "latest"
 LEDGER_FILE = "ledger.sqlite"
-STATE_FILE = "simulator_state.json"  # the simulator's manual and its version
+STATE_FILE = "world_model_state.json"  # the world-model server's manual and its version
+OLD_STATE_FILE = "simulator_state.json"  # its name in runs made before the server was named so
 KEYS_FILE = "reviewer_keys.json"
 DEFAULT_LEDGER = Path(os.environ.get("LWM_LEDGER", LOGS / LATEST / LEDGER_FILE))
+
+
+def state_file(run_dir: Path) -> Path:
+    """The world-model server's saved manual in run_dir; a run made before the rename keeps its
+    file under the old name, and resuming it must find it there."""
+    old = run_dir / OLD_STATE_FILE
+    return old if old.is_file() and not (run_dir / STATE_FILE).exists() else run_dir / STATE_FILE
 
 
 def new_run_dir(root: Path = LOGS) -> Path:
@@ -56,7 +64,7 @@ def latest_run_dir(root: Path = LOGS) -> Path | None:
 
 def earlier_run_files(ledger: Path, state: Path) -> list[Path]:
     """What an earlier run left that a new one would silently continue: a ledger with records,
-    and the simulator's saved manual."""
+    and the world-model server's saved manual."""
     found = []
     if ledger.is_file():
         try:
@@ -74,4 +82,4 @@ def earlier_run_files(ledger: Path, state: Path) -> list[Path]:
     return found
 
 
-__all__ = ["DEFAULT_LEDGER", "LOGS", "earlier_run_files", "latest_run_dir", "new_run_dir", "point_latest"]
+__all__ = ["DEFAULT_LEDGER", "LOGS", "earlier_run_files", "latest_run_dir", "new_run_dir", "point_latest", "state_file"]

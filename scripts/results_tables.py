@@ -37,16 +37,12 @@ PAPER_IMAGINATION = {  # delta_dist, reward precision, termination precision
     "emma": ((0.57, 1.14, 1.29), (0.88, 0.69, 0.70), (0.88, 0.75, 0.71)),
     "oracle": ((0.49, 0.77, 0.92), (0.93, 0.81, 0.77), (0.89, 0.84, 0.79)),
 }
-# the shipped world models, in the paper's order: (name in Table 3's records, kind (the paper's
-# figures), name, evaluation file)
-SHIPPED = (
-    ("observational", "observational", "Observational", "table1-2/observational.json"),
-    ("standard", "standard", "Standard", "table1-2/standard.json"),
-    ("gpthard", "gpthard", "GPTHard", "table1-2/gpthard.json"),
-    ("emma", "emma", "EMMA-LWM", "table1-2/emma-lwm.json"),
-    ("emma-freeform", "emma", "EMMA-LWM free-form", "table1-2/emma-lwm-freeform.json"),
-    ("oracle", "oracle", "OracleParse", "table1-2/oracle.json"),
-)
+# the shipped world models, in the paper's order (lwm_models/world/shipped.py): (name in Table 3's
+# records, kind (the paper's figures), name, evaluation file)
+sys.path.insert(0, str(ROOT))
+from lwm_models.world.shipped import WORLD_MODELS  # noqa: E402
+
+SHIPPED = tuple((m.key, m.kind, m.title, f"table1-2/{m.directory}.json") for m in WORLD_MODELS)
 TABLE3_MODELS = (("observational", "Observational"), ("emma", "EMMA-LWM"), ("oracle", "OracleParse"))
 TABLE3_SETTINGS = (("online_il", "Online IL"), ("filtered_bc", "Filtered BC"))
 SPLIT_HEAD = "| NewCombo | NewAttr | NewAll |"
@@ -57,7 +53,6 @@ def _load(name: str) -> dict:
 
 
 def _paper_table3() -> dict:
-    sys.path.insert(0, str(ROOT))
     from lwm_models.cli.table3 import PAPER
 
     return PAPER
@@ -272,7 +267,7 @@ def load(base: str) -> list[str]:
     one = re.compile(r"^one client: .*?([\d.]+) calls/s")
     many = re.compile(r"^8 clients: .*?([\d.]+) calls/s, +([\d.]+) steps/s.*p50 (\d+) ms, p99 (\d+) ms")
     lines = [
-        "| simulator version, checkpoint | run | one client | 8 clients | ratio (calls/s) | 8 clients' p50 / p99 |",
+        "| version, checkpoint | run | one client | 8 clients | ratio (calls/s) | 8 clients' p50 / p99 |",
         "|---|---|---|---|---|---|",
     ]
     for path, label in (

@@ -1,5 +1,5 @@
 """What the tests share: a manual and a start observation of newall-test game 0's kind, random
-games, and the shipped simulator on that manual."""
+games, and the shipped world-model server on that manual."""
 
 from __future__ import annotations
 
@@ -27,14 +27,14 @@ def random_games(n: int, seed: int) -> list:
     return games
 
 
-def shipped_simulator():
-    """The simulator on the shipped EMMA-LWM, one torch thread, with MANUAL as its manual."""
+def shipped_server():
+    """The world-model server on the shipped EMMA-LWM, one torch thread, with MANUAL as its manual."""
     import torch
 
     from lwm_models.world.frozen_text import FrozenTextEncoder
-    from lwm_models.world.simulator import Simulator
+    from lwm_models.world.model_server import WorldModelServer
 
     torch.set_num_threads(1)
-    s = Simulator(encoder=FrozenTextEncoder())
+    s = WorldModelServer(encoder=FrozenTextEncoder())
     s.set_manual(MANUAL, "test")
     return s

@@ -1,5 +1,5 @@
 """The system across two hosts: two network namespaces joined by a veth pair stand in for them
-(traffic stays on this machine). The simulator runs in one, the environment, planner and scripted
+(traffic stays on this machine). The world-model server runs in one, the environment, planner and scripted
 reviewer in the other; discovery reaches the subnet and Fast DDS is held to UDP, so nothing can
 cross through shared memory. The review loop must complete across them.
 
@@ -98,18 +98,18 @@ def test_the_review_loop_completes_across_two_hosts(two_hosts, tmp_path):
         "PYTHONUNBUFFERED": "1",
     }
     keys = tmp_path / "reviewer_keys.json"  # copied to every host in real life; here one file
-    simulator = launch(a, env, "--only", "simulator", "--no-human", "--log-dir", str(tmp_path / "A"),
+    server = launch(a, env, "--only", "world_model", "--no-human", "--log-dir", str(tmp_path / "A"),
                        "--keys-file", str(keys))  # fmt: skip
     try:
         deadline = time.monotonic() + 120
         lines = []
         while time.monotonic() < deadline:
-            line = simulator.stdout.readline()
+            line = server.stdout.readline()
             lines.append(line)
             if "nodes ready" in line or not line:
                 break
         assert any("all 1 nodes ready" in x for x in lines), "".join(lines)
-        # The simulator is reachable from B over the veth, and only there: with discovery held to
+        # The world-model server is reachable from B over the veth, and only there: with discovery held to
         # the local host (the default) the same call finds no service.
         obs = [[2, 2, 7], [10, 7, 2], [11, 7, 7], [15, 2, 2]]
         request = json.dumps({"version": 1, "observation": obs, "manual": MANUAL, "actions": [[3]], "max_steps": 2})
@@ -133,12 +133,12 @@ def test_the_review_loop_completes_across_two_hosts(two_hosts, tmp_path):
         summary = [line for line in out.splitlines() if "SUMMARY" in line]
         assert summary and "real return" in summary[0], out[-3000:]
         # The plans were imagined on the other host: the planner has no world model, and the
-        # simulator's log shows the manual it took from the environment across the veth.
-        simulator_log = (tmp_path / "A" / "simulator.log").read_text()
-        assert "from the environment" in simulator_log, simulator_log[-2000:]
+        # world-model server's log shows the manual it took from the environment across the veth.
+        server_log = (tmp_path / "A" / "world_model.log").read_text()
+        assert "from the environment" in server_log, server_log[-2000:]
     finally:
-        simulator.send_signal(signal.SIGINT)
+        server.send_signal(signal.SIGINT)
         try:
-            simulator.wait(30)
+            server.wait(30)
         except subprocess.TimeoutExpired:
-            simulator.kill()
+            server.kill()

@@ -1,4 +1,4 @@
-"""Continuous batching of /lwm/imagine (lwm_models.world.continuous and .batching), with real
+"""Continuous batching of /lwm/imagine (lwm_models.world.continuous and .imagine_server), with real
 threads and the shipped model: concurrent requests share the model's steps, join a running batch
 and leave it at their own end, and each gets the answer it would get alone."""
 
@@ -9,15 +9,15 @@ import threading
 import time
 
 import pytest
-from game_fixtures import MANUAL, OBS, shipped_simulator
+from game_fixtures import MANUAL, OBS, shipped_server
 
-from lwm_models.world.batching import ImagineServer, ShuttingDown, WorkerImagineServer
 from lwm_models.world.continuous import ContinuousBatch, run_alone
+from lwm_models.world.imagine_server import ImagineServer, ShuttingDown, WorkerImagineServer
 
 
 @pytest.fixture(scope="module")
 def sim():
-    return shipped_simulator()
+    return shipped_server()
 
 
 def request(i: int, **extra) -> str:
@@ -88,20 +88,20 @@ def test_requests_join_a_running_batch_and_leave_at_their_own_end(sim):
     ]
     alone = [run_alone(sim.model, sim.one_shot(r)) for r in requests]
     batch = ContinuousBatch(sim.model)
-    tracks = [sim.one_shot(r) for r in requests]
-    batch.admit(tracks[0])
-    batch.admit(tracks[1])
+    shots = [sim.one_shot(r) for r in requests]
+    batch.admit(shots[0])
+    batch.admit(shots[1])
     ended = []
     for _ in range(3):
         ended += batch.step()
-    assert tracks[0].t == 3 and not ended
-    batch.admit(tracks[2])
+    assert shots[0].t == 3 and not ended
+    batch.admit(shots[2])
     while batch:
         ended += batch.step()
-    assert tracks[2] in ended and tracks[2].t == 3  # the short one left at its own time limit
-    assert tracks[2].peak >= 2 and batch.row_steps > batch.steps
-    for track, want in zip(tracks, alone):
-        got = track.result()
+    assert shots[2] in ended and shots[2].t == 3  # the short one left at its own time limit
+    assert shots[2].peak >= 2 and batch.row_steps > batch.steps
+    for shot, want in zip(shots, alone):
+        got = shot.result()
         for name in ("observations", "actions", "rewards", "dones", "lengths"):
             assert (getattr(got, name) == getattr(want, name)).all(), name
         assert abs(got.token_probs - want.token_probs).max() < 1e-4
@@ -172,7 +172,7 @@ def worker_server(sim):
 
 
 def test_the_worker_process_answers_as_the_thread_does_and_batches(sim, worker_server):
-    # The simulator node's server: the same answers as a call alone, while concurrent calls share
+    # The world-model server node's server: the same answers as a call alone, while concurrent calls share
     # the worker process's steps.
     alone = {i: sim.handle(json.loads(request(i))) for i in range(8)}
     results = concurrently(worker_server, {i: request(i) for i in range(8)})
@@ -238,7 +238,7 @@ def test_closing_the_worker_server_answers_every_call_within_its_deadline(sim):
     for t in threads:
         t.join(10)
     took = time.perf_counter() - began
-    # The bound is the simulator node's: it must have stopped 2 s after the signal. Measured (20
+    # The bound is the world-model server node's: it must have stopped 2 s after the signal. Measured (20
     # closes while scripts/stress_ci.sh ran the suite beside a CPU burner): median 0.54 s, max 0.98 s.
     assert took < 2.0 and sorted(results) == [0, 1, 2, 3, 4], (took, sorted(results))
     refused = [i for i, (text, error) in results.items() if error is not None and "shutting down" in text]

@@ -8,14 +8,14 @@ import json
 import numpy as np
 import pytest
 import torch
-from game_fixtures import OBS, random_games, shipped_simulator
+from game_fixtures import OBS, random_games, shipped_server
 
 from lwm_models.messenger import POLICIES, rollout
 from lwm_models.messenger.constants import AVATAR_WITH_MESSAGE, DEFAULT_MAX_STEPS
 from lwm_models.world.constraints import StepRules, rule_breaks
 from lwm_models.world.evaluate import consistency_counts
 from lwm_models.world.imagine import imagine
-from lwm_models.world.simulator import serve_json
+from lwm_models.world.model_server import serve_json
 from lwm_models.world.tokens import obs_to_tokens, reward_label
 
 
@@ -66,7 +66,7 @@ def test_the_rules_refuse_what_the_game_cannot_do():
 
 @pytest.fixture(scope="module")
 def sim():
-    return shipped_simulator()
+    return shipped_server()
 
 
 def test_constrained_imagination_is_consistent_and_raw_rows_are_untouched(sim):
@@ -129,9 +129,9 @@ def test_impossible_mass_sees_how_much_a_model_learnt_the_rules(tmp_path, sim):
     copy's, and the groups add up to the whole."""
     from lwm_models.data.dataset import generate_dataset
     from lwm_models.text import DescriptionPools
-    from lwm_models.world.batches import SplitTokens
     from lwm_models.world.evaluate import IMPOSSIBLE_GROUPS, impossible_mass
     from lwm_models.world.registry import build_model
+    from lwm_models.world.training_data import SplitTokens
 
     generate_dataset(tmp_path, DescriptionPools.generated(), max_games=12, train_episodes_per_game=1)
     shipped = sim.model

@@ -18,13 +18,13 @@ from lwm_models.data.splits import load_split
 from lwm_models.messenger.engine import BatchedMessenger
 from lwm_models.world import speculative
 from lwm_models.world.checkpoint import load_checkpoint
-from lwm_models.world.continuous import ContinuousBatch, Track
-from lwm_models.world.decoding import default_decoding, make_rows
+from lwm_models.world.continuous import ContinuousBatch, OneShot
+from lwm_models.world.decoding import default_decoding, make_decoder_batch
 from lwm_models.world.flat_decoder import FlatDecoder
-from lwm_models.world.imagine import Rows, condition_rows, imagine
+from lwm_models.world.imagine import DecoderBatch, condition_rows, imagine
 from lwm_models.world.registry import PRESETS, build_model
 from lwm_models.world.shipped import shipped_checkpoint
-from lwm_models.world.speculative import FastRows
+from lwm_models.world.speculative import FlatDecoderBatch
 
 PROB_BOUND = 1e-5  # the largest difference of a token's probability, speculative vs reference
 STEPS = 12
@@ -122,17 +122,17 @@ def test_continuous_batching_on_the_fast_path(shipped, starts):
     model, manual = shipped
     cond = model.condition_on(manual)
 
-    def tracks() -> list[Track]:
+    def shots() -> list[OneShot]:
         out = []
         for i in range(3):
             n = 2 + i
             first = starts[i : i + n]
             actions = np.random.default_rng(i).integers(5, size=(n, STEPS))
-            out.append(Track(condition_rows(cond, n), first, actions, STEPS - 3 * i, seed=i, constrained=i == 1))
+            out.append(OneShot(condition_rows(cond, n), first, actions, STEPS - 3 * i, seed=i, constrained=i == 1))
         return out
 
     def served(decoding: str) -> list:
-        batch, pending, done = ContinuousBatch(model, decoding=decoding), tracks(), []
+        batch, pending, done = ContinuousBatch(model, decoding=decoding), shots(), []
         while pending or len(batch):
             if pending and (batch.steps % 2 == 0 or not len(batch)):
                 batch.admit(pending.pop(0))
@@ -147,18 +147,18 @@ def test_the_default_is_speculative_and_the_reference_stays_selectable(shipped, 
     model, _ = shipped
     monkeypatch.delenv("LWM_DECODING", raising=False)
     assert default_decoding() == "speculative"
-    assert isinstance(make_rows(model), FastRows)
-    assert type(make_rows(model, "reference")) is Rows
-    assert type(make_rows(model, use_cache=False)) is Rows  # no KV cache: the reference path
+    assert isinstance(make_decoder_batch(model), FlatDecoderBatch)
+    assert type(make_decoder_batch(model, "reference")) is DecoderBatch
+    assert type(make_decoder_batch(model, use_cache=False)) is DecoderBatch  # no KV cache: the reference path
     monkeypatch.setenv("LWM_DECODING", "reference")
-    assert type(make_rows(model)) is Rows
+    assert type(make_decoder_batch(model)) is DecoderBatch
     with pytest.raises(ValueError):
-        make_rows(model, "fastest")
+        make_decoder_batch(model, "fastest")
 
 
 def test_cross_attention_falls_back_to_the_reference_path():
     model = build_model("standard", PRESETS["tiny"]).eval()
-    assert type(make_rows(model, "speculative")) is Rows
+    assert type(make_decoder_batch(model, "speculative")) is DecoderBatch
 
 
 def test_the_flat_decoder_follows_the_weights():

@@ -1,5 +1,5 @@
 """What the world model reads each description as about (lwm_models/world/reading.py), and the
-simulator telling a person when a description is about an entity that is not on the board."""
+world-model server telling a person when a description is about an entity that is not on the board."""
 
 from __future__ import annotations
 
@@ -12,9 +12,9 @@ import pytest
 from lwm_models.data.splits import load_split
 from lwm_models.text import DescriptionPools
 from lwm_models.world.checkpoint import load_checkpoint
+from lwm_models.world.model_server import WorldModelServer
 from lwm_models.world.reading import grounding, read_identities, ungrounded_note
 from lwm_models.world.shipped import shipped_checkpoint
-from lwm_models.world.simulator import Simulator
 
 
 @pytest.fixture(scope="module")
@@ -56,10 +56,10 @@ def test_the_note_names_what_is_off_the_board():
     ]
 
 
-def test_the_simulator_flags_a_manual_about_another_board(tmp_path):
+def test_the_world_model_server_flags_a_manual_about_another_board(tmp_path):
     game = load_split("newall-test")[0]
     board = [e.identity for e in game.entities]
-    sim = Simulator(state_path=tmp_path / "state.json")
+    sim = WorldModelServer(state_path=tmp_path / "state.json")
     pools = DescriptionPools.generated()
     sim.take_env_manual(pools.draw("newall-test", list(game.triples), np.random.default_rng(1)), "newall-test:0:0")
     status = sim.status()

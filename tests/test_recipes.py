@@ -12,22 +12,16 @@ import pytest
 
 from lwm_models.cli import main as cli_main
 from lwm_models.cli import recipes
+from lwm_models.world.shipped import POLICY, WORLD_MODELS
 
 ROOT = Path(__file__).resolve().parents[1]
 CONFIGS = ROOT / "configs"
 CHECKPOINTS = ROOT / "lwm_models" / "checkpoints"
 # A chunk's length and its progress bar are how one session ran, not how the model was trained.
 PER_CHUNK = {"max_minutes", "progress", "tensorboard"}
-# recipe -> shipped checkpoint; oracle-long is the stopped long run of OracleParse, not shipped
-SHIPPED = {
-    "emma-lwm": "emma-lwm",
-    "emma-lwm-freeform": "emma-lwm-freeform",
-    "observational": "observational",
-    "standard": "standard",
-    "gpthard": "gpthard",
-    "oracle": "oracle",
-    "policy-bc": "policy-bc",
-}
+# recipe -> shipped checkpoint (lwm_models/world/shipped.py); oracle-long is the stopped long run of
+# OracleParse, not shipped
+SHIPPED = {m.directory: m.directory for m in (*WORLD_MODELS, POLICY)}
 
 
 def _parse(argv: list[str]):
@@ -44,7 +38,7 @@ def test_every_shipped_checkpoint_has_its_recipe():
     assert {p.name for p in CHECKPOINTS.iterdir() if (p / "config.json").is_file()} == set(SHIPPED.values())
 
 
-@pytest.mark.parametrize("name", ["emma-lwm", "emma-lwm-freeform", "observational", "standard", "gpthard", "oracle"])
+@pytest.mark.parametrize("name", [m.directory for m in WORLD_MODELS])
 def test_a_world_model_recipe_parses_to_what_its_checkpoint_was_trained_with(name, tmp_path):
     from lwm_models.world.train import TrainArgs
 

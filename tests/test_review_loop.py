@@ -1,4 +1,4 @@
-"""The review loop's core without ROS: the simulator's sessions, the imagination client, manual
+"""The review loop's core without ROS: the world-model server's sessions, the imagination client, manual
 versions, the scripted reviewer and the review state machine, all with real components in one
 process (the ROS tests run the same code across processes)."""
 
@@ -26,8 +26,8 @@ from lwm_models.ledger import Ledger
 from lwm_models.messenger.observation import InvalidObservation, check_observation
 from lwm_models.world.frozen_text import FrozenTextEncoder
 from lwm_models.world.imagine import imagine
+from lwm_models.world.model_server import RequestError, WorldModelServer
 from lwm_models.world.shipped import SHIPPED, SHIPPED_POLICY
-from lwm_models.world.simulator import RequestError, Simulator
 
 
 @pytest.fixture(scope="module")
@@ -38,7 +38,7 @@ def encoder():
 @pytest.fixture(scope="module")
 def sim(encoder):
     torch.set_num_threads(1)
-    s = Simulator(encoder=encoder)
+    s = WorldModelServer(encoder=encoder)
     s.set_manual(MANUAL, "test")
     return s
 
@@ -95,13 +95,13 @@ def test_states_that_are_no_game_state_are_refused(sim, obs, why):
 
 def test_manual_versions_persist_and_the_same_text_is_no_new_version(encoder, tmp_path):
     state = tmp_path / "sim.json"
-    s = Simulator(encoder=encoder, state_path=state)
+    s = WorldModelServer(encoder=encoder, state_path=state)
     assert s.take_env_manual(MANUAL, "newall-test:0:0") == (1, True)
     assert s.take_env_manual(MANUAL, "newall-test:0:1") == (1, False)  # the same text again
     human = list(reversed(MANUAL))
     assert s.set_manual(human, "human") == (2, True)
     assert s.take_env_manual(MANUAL[::2] + MANUAL[1:2], "newall-test:0:2") == (2, False)  # a person's manual stays
-    restarted = Simulator(encoder=encoder, state_path=state)
+    restarted = WorldModelServer(encoder=encoder, state_path=state)
     assert (restarted.manual_version, restarted.manual, restarted.manual_source) == (2, human, "human")
     assert restarted.take_env_manual(MANUAL, "newall-test:5:0") == (3, True)  # a new game: its manual
 
@@ -109,7 +109,7 @@ def test_manual_versions_persist_and_the_same_text_is_no_new_version(encoder, tm
 def test_the_observational_model_ignores_the_manual_and_emma_does_not(encoder):
     request = {"observation": OBS, "actions": [[1, 1, 3, 3]], "max_steps": 4, "seed": 5}
     for kind, differs in (("emma", True), ("observational", False)):
-        s = Simulator(SHIPPED[kind], encoder=encoder)
+        s = WorldModelServer(SHIPPED[kind], encoder=encoder)
         s.set_manual(MANUAL)
         before = s.handle(request)["trajectories"][0]
         s.set_manual(list(reversed(MANUAL[1:])) + ["the queen is the goal and never moves."])
@@ -146,9 +146,9 @@ def test_the_scripted_reviewer_never_approves_a_plan_that_dies():
 
 
 class LoopHarness:
-    """A review loop on the real game and an in-process simulator; feedback from the test."""
+    """A review loop on the real game and an in-process world-model server; feedback from the test."""
 
-    def __init__(self, sim: Simulator, budget: Budget, step=None) -> None:
+    def __init__(self, sim: WorldModelServer, budget: Budget, step=None) -> None:
         self.session = GameSession("newall-test", 0)
         self.sim = sim
         self.plans: list[dict] = []
@@ -227,7 +227,7 @@ def test_the_scripted_reviewer_speaks_first_with_the_true_manual_in_other_words(
 
 
 def test_review_loop_manual_labels_and_closed_loop_execution(encoder):
-    sim = Simulator(encoder=encoder)
+    sim = WorldModelServer(encoder=encoder)
     h = LoopHarness(sim, Budget(iterations=1, episodes=2, grad_steps=2))
     state = h.session.reset(0)
     sim.take_env_manual(h.session.manual()["descriptions"], state["episode_id"])
@@ -290,7 +290,7 @@ def test_a_request_that_failed_is_an_error_not_a_retry(sim):
 def test_a_stop_ends_the_execution_before_the_agent_s_next_move(encoder):
     """The real game's first step waits until the reviewer has said stop: the agent then makes no
     further move, and the report says it was stopped, within 2 s."""
-    sim = Simulator(encoder=encoder)
+    sim = WorldModelServer(encoder=encoder)
     entered, release = threading.Event(), threading.Event()
     h = None
 

@@ -1,4 +1,4 @@
-"""The ROS 2 nodes across real processes: the launcher starts the environment and simulator nodes
+"""The ROS 2 nodes across real processes: the launcher starts the environment and world-model server nodes
 (on the shipped EMMA-LWM), and the `lwm ros` command line (its own process) talks to them over
 Fast DDS on localhost."""
 
@@ -122,7 +122,7 @@ def wait_for(predicate, timeout: float = 15.0):
 def test_graph_lists_the_nodes_and_services(system):
     # Graph discovery of a fresh process took over the default 1 s once in CI on a loaded machine.
     nodes = lwm_ros(system, "nodes", "--settle", "3").stdout.split()
-    assert "/messenger_env" in nodes and "/lwm_simulator" in nodes
+    assert "/messenger_env" in nodes and "/lwm_world_model" in nodes
     services = lwm_ros(system, "services", "--settle", "3").stdout
     assert "/lwm/imagine [lwm_interfaces/srv/Json]" in services and "/env/step" in services
 
@@ -166,7 +166,7 @@ def test_environment_reset_and_step(system):
 
 def watch_errors(system, timeout: float, publishers: int = 3) -> tuple[subprocess.Popen, list[str]]:
     """`lwm ros echo /lwm/errors` in the background, once it has matched the nodes that report
-    errors (env, simulator, planner: an event, not a sleep): the process, and the lines it prints."""
+    errors (env, world-model server, planner: an event, not a sleep): the process, and the lines it prints."""
     errors = subprocess.Popen(
         [sys.executable, "-m", "lwm_models.cli.main", "ros", "echo", "/lwm/errors", "--timeout", str(timeout)]
         + ["--wait-publishers", str(publishers)],
@@ -207,8 +207,8 @@ def test_malformed_payloads_get_errors_and_the_nodes_keep_serving(system):
     /lwm/errors from each reading node, and the node still serves afterwards."""
     human = start_human_node(system)
     expected = {
-        ("lwm_simulator", "/feedback/manual"),
-        ("lwm_simulator", "/env/manual"),
+        ("lwm_world_model", "/feedback/manual"),
+        ("lwm_world_model", "/env/manual"),
         ("planner", "/lwm/status"),
         ("planner", "/env/state"),
         ("planner", "/review/labels"),
@@ -217,7 +217,7 @@ def test_malformed_payloads_get_errors_and_the_nodes_keep_serving(system):
         ("human_feedback", "/planner/plan"),
         ("human_feedback", "/planner/report"),
         ("planner", "/review/feedback"),
-        ("lwm_simulator", "/lwm/imagine"),
+        ("lwm_world_model", "/lwm/imagine"),
         ("messenger_env", "/env/reset"),
         ("messenger_env", "/env/step"),
     }
@@ -343,7 +343,7 @@ def test_manual_feedback_reaches_the_plan_under_review(system):
     pub = lwm_ros(system, "pub", "/feedback/manual", manual, "--kind", "manual", *signed(system))
     assert pub.returncode == 0, pub.stderr
     st = wait_for(lambda: (s := status(system))["manual"] == MANUAL2 and s)
-    assert st, "the simulator did not take the manual"
+    assert st, "the world-model server did not take the manual"
     plan = wait_for(lambda: (p := latched(system, "/planner/plan"))["manual"] == MANUAL2 and p, timeout=60)
     assert plan, "no plan under the new manual"
     assert plan["manual_version"] == st["manual_version"] > before["manual_version"]
@@ -403,15 +403,15 @@ def test_the_planner_process_reads_no_world_model_weights(system):
         f = audit / f"{node_pid(module, domain)}.txt"
         return f.read_text() if f.is_file() else ""
 
-    assert "checkpoints/emma-lwm/" in opened("lwm_nodes.simulator_node")  # the audit sees the world model
+    assert "checkpoints/emma-lwm/" in opened("lwm_nodes.world_model_node")  # the audit sees the world model
     planner = opened("lwm_nodes.planner_node")
     assert "checkpoints/policy-bc/" in planner  # it does load its policy
     assert not any(f"checkpoints/{m}/" in planner for m in ("emma-lwm", "observational", "oracle"))
 
 
 def test_a_killed_node_is_restarted(system):
-    log = system["tmp"] / "logs" / "simulator.log"
-    os.kill(node_pid("lwm_nodes.simulator_node", system["env"]["ROS_DOMAIN_ID"]), signal.SIGKILL)
+    log = system["tmp"] / "logs" / "world_model.log"
+    os.kill(node_pid("lwm_nodes.world_model_node", system["env"]["ROS_DOMAIN_ID"]), signal.SIGKILL)
     assert wait_for(lambda: Path(log).read_text().count("READY") >= 2, timeout=60)
     ok = call(system, "/lwm/imagine", {"version": 1, "observation": OBS, "manual": MANUAL, "n": 1, "max_steps": 2})
     assert ok["ok"]
@@ -658,7 +658,7 @@ def test_every_run_in_one_checkout_starts_clean_and_resume_shows_a_finished_revi
     assert refused.returncode == 2 and "--resume" in refused.stderr and "Traceback" not in refused.stderr
 
 
-def test_simulator_killed_mid_review_the_review_resumes(tmp_path):
+def test_world_model_server_killed_mid_review_the_review_resumes(tmp_path):
     proc, env, ledger_path = start_scripted(tmp_path)
     from lwm_models.ledger import Ledger
 
@@ -666,16 +666,16 @@ def test_simulator_killed_mid_review_the_review_resumes(tmp_path):
         return ledger_path.is_file() and any(r["kind"] == "labels" for r in Ledger(ledger_path).history())
 
     assert wait_for(labelling, timeout=240), "no online-imitation round started"
-    os.kill(node_pid("lwm_nodes.simulator_node", env["ROS_DOMAIN_ID"]), signal.SIGKILL)
+    os.kill(node_pid("lwm_nodes.world_model_node", env["ROS_DOMAIN_ID"]), signal.SIGKILL)
     out, _ = proc.communicate(timeout=600)
     assert proc.returncode == 0, out[-3000:]
-    assert "simulator exited with -9; restart 1" in out
+    assert "world_model exited with -9; restart 1" in out
     records = Ledger(ledger_path).history()
     kinds = [r["kind"] for r in records]
     assert kinds.count("report") == 1 and kinds.count("label_request") == kinds.count("labels") >= 1
     plan_ids = [r["payload"]["plan_id"] for r in records if r["kind"] == "plan"]
     assert plan_ids == sorted(set(plan_ids))
-    # The restarted simulator kept the manual's version: every plan says version 1.
+    # The restarted world-model server kept the manual's version: every plan says version 1.
     assert {r["payload"]["manual_version"] for r in records if r["kind"] == "plan"} == {1}
 
 

@@ -15,12 +15,12 @@ import torch
 from lwm_models.data.dataset import generate_dataset
 from lwm_models.messenger.constants import DEFAULT_MAX_STEPS
 from lwm_models.text import DescriptionPools
-from lwm_models.world.batches import SplitTokens
 from lwm_models.world.checkpoint import load_checkpoint
 from lwm_models.world.evaluate import ImaginationScore, imagination_metrics, loss_by_prefix
 from lwm_models.world.imagine import Imagination
 from lwm_models.world.tokens import DUMMY_ACTION, FIRST_REWARD_LABEL
 from lwm_models.world.train import TrainArgs, evaluate_loss, train
+from lwm_models.world.training_data import SplitTokens
 
 VENV_BIN = Path(sys.executable).parent
 

@@ -1,10 +1,10 @@
 """The plan-review agent: in an unseen game it may not act until a person has seen its plan.
 
 It holds a policy, the manual it believes and what it has been taught in this game, but no world
-model: it imagines through an imaginer (the simulator's `/lwm/imagine`, see imaginer.py). A plan
+model: it imagines through an imaginer (the world-model server's `/lwm/imagine`, see imaginer.py). A plan
 is the policy's imagined trajectory (argmax actions) with K more sampled futures of the same
 policy from the same start, so a reviewer sees how sure the plan is. Feedback it learns from:
-- a manual (three descriptions) that replaces the one the policy reads (the simulator's world
+- a manual (three descriptions) that replaces the one the policy reads (the world-model server's world
   model takes the same manual from /feedback/manual);
 - corrections: the right action for states of the shown plan;
 - online imitation: rounds of imagined episodes whose states the reviewer labels (DAgger);

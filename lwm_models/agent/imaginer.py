@@ -1,9 +1,9 @@
 """Where the agent imagines: the world model's owner, reached through its request interface.
 
 The planner holds no world model. Everything it imagines (plans, sampled futures, online-imitation
-rounds, the execution monitor) goes through `ServiceImaginer`, which speaks the simulator's
+rounds, the execution monitor) goes through `ServiceImaginer`, which speaks the world-model server's
 imagine requests (msgs_json/imagine_request) over any transport: a ROS service call in the planner
-node, `Simulator.handle` in process (tests, benchmarks). A policy acts inside imagination through a
+node, `WorldModelServer.handle` in process (tests, benchmarks). A policy acts inside imagination through a
 step-wise session: open, one `step` per time step with the running trajectories' actions, close.
 
 `LocalImaginer` runs a world model in process with the same interface (Table 3, which compares
@@ -21,30 +21,30 @@ import numpy as np
 
 from ..errors import LwmError
 from ..world.base import ManualBatch, WorldModel
-from ..world.imagine import Imagination, Policy, Record, imagine
+from ..world.imagine import Imagination, Policy, Trajectories, imagine
 
 
 class ImagineError(LwmError, RuntimeError):
-    """The simulator refused a request (the message says why)."""
+    """The world-model server refused a request (the message says why)."""
 
 
 class Unavailable(LwmError, ConnectionError):
-    """The transport could not reach the simulator (not started, restarting, timed out)."""
+    """The transport could not reach the world-model server (not started, restarting, timed out)."""
 
 
 @dataclass
 class CallStats:
     calls: int = 0
     round_trip_s: float = 0.0  # what the caller waited
-    server_s: float = 0.0  # what the simulator spent (its `seconds`)
+    server_s: float = 0.0  # what the world-model server spent (its `seconds`)
     retries: int = 0
 
 
 @dataclass
 class ServiceImaginer:
-    """call(request dict) -> response dict; raises Unavailable when the simulator cannot be reached.
+    """call(request dict) -> response dict; raises Unavailable when the world-model server cannot be reached.
 
-    A rollout whose session is lost (the simulator restarted) or whose transport fails is started
+    A rollout whose session is lost (the world-model server restarted) or whose transport fails is started
     again from scratch, for up to `retry_for` seconds: imagination is stateless for the caller.
     """
 
@@ -60,7 +60,7 @@ class ServiceImaginer:
         self.stats.round_trip_s += time.perf_counter() - began
         self.stats.server_s += float(answer.get("seconds", 0.0))
         if not answer.get("ok"):
-            raise ImagineError(answer.get("error", "the simulator refused the request"))
+            raise ImagineError(answer.get("error", "the world-model server refused the request"))
         return answer
 
     def _retrying(self, attempt: Callable[[], Imagination]) -> Imagination:
@@ -100,7 +100,7 @@ class ServiceImaginer:
         req.update({"observation": starts.tolist()} if starts.ndim == 2 else {"observations": starts.tolist()})
         opened = self.request(req)
         sid = opened["session"]
-        out = Record(np.broadcast_to(starts, (n, 4, 3)), max_steps)
+        out = Trajectories(np.broadcast_to(starts, (n, 4, 3)), max_steps)
         active = np.asarray(opened["active"], dtype=np.int64)
         try:
             t = 0
@@ -132,7 +132,7 @@ class ServiceImaginer:
                 req["constrained"] = True
             req.update({"observation": starts.tolist()} if starts.ndim == 2 else {"observations": starts.tolist()})
             answer = self.request(req)
-            out = Record(np.broadcast_to(starts, (len(actions), 4, 3)), max_steps)
+            out = Trajectories(np.broadcast_to(starts, (len(actions), 4, 3)), max_steps)
             for i, tr in enumerate(answer["trajectories"]):
                 observations = np.asarray(tr["observations"], dtype=np.uint8)
                 out.put_trajectory(i, observations, tr["actions"], tr["rewards"], tr["dones"], tr["confidence"])
@@ -166,12 +166,12 @@ class LocalImaginer:
         )
 
 
-def in_process(simulator) -> Callable[[dict], dict]:
-    """A transport to a Simulator in this process that takes the same JSON path as the service
+def in_process(server) -> Callable[[dict], dict]:
+    """A transport to a WorldModelServer in this process that takes the same JSON path as the service
     (encode, validate, handle, encode, decode), for tests and benchmarks."""
-    from ..world.simulator import serve_json
+    from ..world.model_server import serve_json
 
-    return lambda request: json.loads(serve_json(simulator, json.dumps(request))[0])
+    return lambda request: json.loads(serve_json(server, json.dumps(request))[0])
 
 
 __all__ = ["CallStats", "ImagineError", "LocalImaginer", "ServiceImaginer", "Unavailable", "in_process"]

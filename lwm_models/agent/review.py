@@ -1,6 +1,6 @@
 """The review loop, ROS-free: what the planner node does, as a state machine with one worker.
 
-A review is one real episode. It opens when the episode's first state and the simulator's manual
+A review is one real episode. It opens when the episode's first state and the world-model server's manual
 for that game are both known, and goes through these phases:
 
     planning  -> reviewing -> (feedback) -> planning ... -> executing -> done
@@ -9,10 +9,10 @@ for that game are both known, and goes through these phases:
     executing -> (the world model, from the real state, gives death a share the plan did not
                   show) -> planning from the real state -> reviewing -> executing (resumed)
 
-Events arrive from any thread (the node's callbacks): `on_status` (the simulator's manual and its
+Events arrive from any thread (the node's callbacks): `on_status` (the world-model server's manual and its
 version), `on_state` (the real game), `on_feedback`, `on_labels`. They validate at once, raising
 FeedbackError for input that does not fit (the node reports it; nothing changes), and hand the
-slow work (imagining through the simulator, learning, acting in the real game) to one worker
+slow work (imagining through the world-model server, learning, acting in the real game) to one worker
 thread, in order. The loop talks to the outside only through `Ports` and the imaginer, so the
 same code runs under ROS and in process.
 
@@ -180,7 +180,7 @@ class ReviewLoop:
 
     # ================================================================== events
     def on_status(self, status: dict) -> None:
-        """The simulator's manual: a new version re-plans the review under it."""
+        """The world-model server's manual: a new version re-plans the review under it."""
         if "manual" not in status:
             return
         with self.lock:
@@ -676,7 +676,7 @@ class ReviewLoop:
             f"(imagined {report['imagined_return']:+.2f}), reviews asked again: {ex.reviews_asked}"
             + (
                 f"; imagine calls {stats.calls}, round trip {stats.round_trip_s:.2f} s, "
-                f"simulator {stats.server_s:.2f} s, retries {stats.retries}"
+                f"world-model server {stats.server_s:.2f} s, retries {stats.retries}"
                 if stats is not None
                 else ""
             )

@@ -4,7 +4,7 @@ It never approves a plan whose shown trajectory dies. It approves at once a safe
 trajectory lives, at most `max_death_share` of its sampled futures die) that reaches
 `approve_return`. Otherwise it first teaches the way it was told to (`teach`: online imitation,
 labelling every state of each round, or filtered behaviour cloning, its own best plans imagined
-through the simulator), then corrects the plan's actions where the expert would act otherwise, or
+through the world-model server), then corrects the plan's actions where the expert would act otherwise, or
 asks for another imagination when the expert would act the same. `teach="none"` neither teaches
 nor corrects: with `language`, the manual is all it gives (the agent learns from it alone), then
 it only approves, rejects or aborts. From the `max_rounds`-th plan on
@@ -125,7 +125,7 @@ class ScriptedReviewer:
         }
 
     def demonstrations(self, plan: dict, imaginer) -> list[dict]:
-        """Filtered BC: the expert plans in the world model (through the simulator) from the 24
+        """Filtered BC: the expert plans in the world model (through the world-model server) from the 24
         starts, and the best plans of each start are sent."""
         starts = start_observations_like(plan["observations"][0])
         k = self.plans_per_start

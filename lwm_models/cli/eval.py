@@ -58,9 +58,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..world.batches import SplitTokens, redraw_manuals
     from ..world.checkpoint import load_checkpoint
     from ..world.evaluate import evaluate_model, loss_by_prefix
+    from ..world.training_data import SplitTokens, redraw_manuals
 
     model, config = load_checkpoint(args.checkpoint)
     kind = config["kind"]

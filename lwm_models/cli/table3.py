@@ -22,7 +22,7 @@ PAPER = {  # real return, the paper's Table 3 (30 games per split)
     ("filtered_bc", "oracle"): (1.17, 0.84, 0.80),
 }
 SPLITS = ("newcombo-test", "newattr-test", "newall-test")
-BUDGET_OPTIONS = ("iterations", "episodes", "grad_steps", "lr", "plans_per_start", "overlap", "constrained")
+BUDGET_OPTIONS = ("iterations", "episodes", "grad_steps", "batch", "lr", "plans_per_start", "overlap", "constrained")
 RECORD_KEYS = ("setting", "model", "split", "game", "return", "learn_seconds")
 
 
@@ -60,7 +60,7 @@ def add_arguments(p: LwmParser) -> None:
         help="how the agent learns: online imitation, filtered behaviour cloning, or the warm-start policy alone",
     )
     p.add_argument("--policy", type=Path, default=None, help="warm-start policy (default: shipped, else untrained)")
-    checks = {"iterations": positive_int, "episodes": positive_int, "grad_steps": positive_int}
+    checks = {"iterations": positive_int, "episodes": positive_int, "grad_steps": positive_int, "batch": positive_int}
     checks |= {"lr": positive_float, "plans_per_start": positive_int}
     add_dataclass_arguments(
         p, Budget, only=BUDGET_OPTIONS, extra={name: {"type": check} for name, check in checks.items()}
@@ -93,6 +93,7 @@ def _budget(args: argparse.Namespace):
         iterations=args.iterations,
         episodes=args.episodes,
         grad_steps=args.grad_steps,
+        batch=args.batch,
         lr=args.lr,
         plans_per_start=args.plans_per_start,
         overlap=args.overlap,
@@ -172,12 +173,11 @@ def run_table3(args: argparse.Namespace) -> int:
     from ..data.dataset import TrajectoryDataset
     from ..world.checkpoint import load_checkpoint
     from ..world.frozen_text import FrozenTextEncoder
-    from ..world.shipped import SHIPPED, SHIPPED_ORACLE, SHIPPED_POLICY
+    from ..world.shipped import SHIPPED_POLICY, table3_defaults
 
     torch.set_num_threads(args.threads)
     models = {}
-    shipped = {**SHIPPED, **({"oracle": SHIPPED_ORACLE} if (SHIPPED_ORACLE / "config.json").is_file() else {})}
-    pairs = args.models or [f"{k}={v}" for k, v in shipped.items()]
+    pairs = args.models or [f"{k}={v}" for k, v in table3_defaults().items()]
     for pair in pairs:
         if "=" not in pair:
             raise LwmError(f"--models takes KIND=CHECKPOINT pairs, got {pair!r}")

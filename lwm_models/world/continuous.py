@@ -19,15 +19,15 @@ import numpy as np
 import torch
 
 from .base import Conditioning, WorldModel
-from .decoding import make_rows
-from .imagine import Imagination, Record
+from .decoding import make_decoder_batch
+from .imagine import Imagination, Trajectories
 
 MAX_ROWS = 256  # trajectories running at once: bounds the memory and the time of one step
-FIRST_BLOCKS = 64  # start states whose first block a batch keeps (Rows._first_block): 16 KB each
+FIRST_BLOCKS = 64  # start states whose first block a batch keeps (DecoderBatch._first_block): 16 KB each
 
 
 @dataclass
-class Track:
+class OneShot:
     """A one-shot request in a batch: n trajectories, each replaying its actions from its start.
 
     cond: the model's conditioning on the request's manual, one row per trajectory.
@@ -47,7 +47,7 @@ class Track:
     peak: int = 1  # the most requests that shared a step with this one (itself included)
 
     def __post_init__(self) -> None:
-        self.record = Record(self.first, self.max_steps)
+        self.trajectories = Trajectories(self.first, self.max_steps)
         self.running = np.arange(len(self.first))  # trajectories not ended, in row order
 
     @property
@@ -55,68 +55,68 @@ class Track:
         return len(self.first)
 
     def result(self) -> Imagination:
-        return self.record.result()
+        return self.trajectories.result()
 
 
 class ContinuousBatch:
-    """The running tracks and their rows: `admit` between steps, `step` returns the tracks that ended."""
+    """The running one-shot requests and their rows: `admit` between steps, `step` returns those that ended."""
 
     def __init__(self, model: WorldModel, max_rows: int = MAX_ROWS, decoding: str | None = None) -> None:
         """decoding: the path that decodes the rows (world/decoding.py; None: the default)."""
-        self.rows = make_rows(model, decoding, first_blocks=FIRST_BLOCKS)
+        self.rows = make_decoder_batch(model, decoding, first_blocks=FIRST_BLOCKS)
         self.max_rows = max_rows
-        self.tracks: list[Track] = []  # in row order: each track's rows are contiguous
+        self.shots: list[OneShot] = []  # in row order: each one's rows are contiguous
         self.steps = 0  # steps taken, and trajectory-steps imagined: for status and benchmarks
         self.row_steps = 0
         self.widest = 0  # the most trajectories in one step
 
     def __len__(self) -> int:
-        return len(self.tracks)
+        return len(self.shots)
 
     def fits(self, size: int) -> bool:
-        """Whether a track of `size` trajectories may join now (a big one may join an empty batch)."""
-        return not self.tracks or len(self.rows) + size <= self.max_rows
+        """Whether a one-shot request of `size` trajectories may join now (a big one may join an empty batch)."""
+        return not self.shots or len(self.rows) + size <= self.max_rows
 
-    def admit(self, track: Track) -> None:
-        gen = torch.Generator().manual_seed(track.seed)
-        self.rows.admit(track.cond, track.first, track.max_steps, track.temperature, gen, track.constrained)
-        self.tracks.append(track)
+    def admit(self, shot: OneShot) -> None:
+        gen = torch.Generator().manual_seed(shot.seed)
+        self.rows.admit(shot.cond, shot.first, shot.max_steps, shot.temperature, gen, shot.constrained)
+        self.shots.append(shot)
 
-    def step(self) -> list[Track]:
-        """One step of every running trajectory; returns the tracks whose last trajectory ended."""
-        actions = np.concatenate([tr.actions[tr.running, tr.t] for tr in self.tracks])
+    def step(self) -> list[OneShot]:
+        """One step of every running trajectory; returns the one-shot requests whose last trajectory ended."""
+        actions = np.concatenate([shot.actions[shot.running, shot.t] for shot in self.shots])
         block, probs = self.rows.step(torch.from_numpy(actions))
         self.steps += 1
         self.row_steps += len(actions)
         self.widest = max(self.widest, len(actions))
         keep, ended, lo = [], [], 0
-        for tr in self.tracks:
-            k = len(tr.running)
-            tr.t += 1
-            tr.peak = max(tr.peak, len(self.tracks))
+        for shot in self.shots:
+            k = len(shot.running)
+            shot.t += 1
+            shot.peak = max(shot.peak, len(self.shots))
             rows = slice(lo, lo + k)
-            done = tr.record.write(tr.running, tr.t, actions[rows], block[rows], probs[rows])
-            if tr.t >= tr.max_steps:
+            done = shot.trajectories.write(shot.running, shot.t, actions[rows], block[rows], probs[rows])
+            if shot.t >= shot.max_steps:
                 done[:] = True
             keep.append(lo + np.flatnonzero(~done))
-            tr.running = tr.running[~done]
-            if not len(tr.running):
-                ended.append(tr)
+            shot.running = shot.running[~done]
+            if not len(shot.running):
+                ended.append(shot)
             lo += k
         keep = np.concatenate(keep)
         if len(keep) < lo:
             self.rows.keep(torch.from_numpy(keep))
-            self.tracks = [tr for tr in self.tracks if len(tr.running)]
+            self.shots = [shot for shot in self.shots if len(shot.running)]
         return ended
 
 
-def run_alone(model: WorldModel, track: Track) -> Imagination:
-    """A track imagined in a batch of its own (the answer it gets in any batch)."""
+def run_alone(model: WorldModel, shot: OneShot) -> Imagination:
+    """A one-shot request imagined in a batch of its own (the answer it gets in any batch)."""
     batch = ContinuousBatch(model)
-    batch.admit(track)
+    batch.admit(shot)
     while batch:
         batch.step()
-    return track.result()
+    return shot.result()
 
 
-__all__ = ["ContinuousBatch", "MAX_ROWS", "Track", "run_alone"]
+__all__ = ["ContinuousBatch", "MAX_ROWS", "OneShot", "run_alone"]

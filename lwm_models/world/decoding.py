@@ -3,7 +3,7 @@
 - "speculative" (the default): the flat decoder, drafting each step's block and checking it in one
   call (world/speculative.py); the tokens of the reference path up to floating-point rounding.
 - "flat": the flat decoder, one token per call as the reference path (world/flat_decoder.py).
-- "reference": the model's own modules, one token per call (imagine.Rows): the definition the
+- "reference": the model's own modules, one token per call (imagine.DecoderBatch): the definition the
   others are tested against (tests/test_fast_imagination.py).
 
 A model the flat decoder does not run (Standard's cross-attention), or imagination without a KV
@@ -17,8 +17,8 @@ import os
 
 from .base import WorldModel
 from .flat_decoder import supports
-from .imagine import Rows
-from .speculative import FastRows
+from .imagine import DecoderBatch
+from .speculative import FlatDecoderBatch
 
 DECODINGS = ("speculative", "flat", "reference")
 
@@ -30,14 +30,16 @@ def default_decoding() -> str:
     return name
 
 
-def make_rows(model: WorldModel, decoding: str | None = None, use_cache: bool = True, first_blocks: int = 0) -> Rows:
+def make_decoder_batch(
+    model: WorldModel, decoding: str | None = None, use_cache: bool = True, first_blocks: int = 0
+) -> DecoderBatch:
     """The rows of a batch of imagination, decoded by `decoding` (None: the default)."""
     decoding = decoding or default_decoding()
     if decoding not in DECODINGS:
         raise ValueError(f"decoding must be one of {', '.join(DECODINGS)}, got {decoding!r}")
     if decoding == "reference" or not use_cache or not supports(model):
-        return Rows(model, use_cache, first_blocks)
-    return FastRows(model, first_blocks, lookahead=-1 if decoding == "speculative" else 0)
+        return DecoderBatch(model, use_cache, first_blocks)
+    return FlatDecoderBatch(model, first_blocks, lookahead=-1 if decoding == "speculative" else 0)
 
 
-__all__ = ["DECODINGS", "default_decoding", "make_rows"]
+__all__ = ["DECODINGS", "default_decoding", "make_decoder_batch"]

@@ -20,11 +20,11 @@ from ..messenger.constants import (
     IDENTITIES,
 )
 from .base import WorldModel
-from .batches import SplitTokens
 from .constraints import StepRules, rule_breaks
 from .imagine import Imagination, imagine
 from .tokens import BLOCK, OBS_TOKENS, SLOT_DONE, SLOT_KIND, SLOT_OBS, SLOT_REWARD
 from .train import evaluate_loss
+from .training_data import SplitTokens
 
 TEST_SPLITS = ("newcombo-test", "newattr-test", "newall-test")
 

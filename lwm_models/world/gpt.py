@@ -67,7 +67,7 @@ class KVCache:
     (`self.end`), so a call writes one slice whatever the lengths, and sequence i holds columns
     [end - lengths[i], end). The columns before a shorter sequence's start are hidden from it by a
     bias that changes only when sequences join or leave. (Per-row write positions and a bias built
-    at every call cost 15% of the simulator's batched steps, measured with py-spy.) Keys carry
+    at every call cost 15% of the world-model server's batched steps, measured with py-spy.) Keys carry
     their positions (learned absolute embeddings added at the input), so where a key is stored
     does not matter, only what each query may see.
     """

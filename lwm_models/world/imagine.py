@@ -4,8 +4,8 @@ Start from a real first observation and its manual, feed actions (a fixed sequen
 called on the imagined observations), and sample each next block's 12 observation tokens, reward
 and done token (categorical, temperature 1 by default) until done or the time limit. A trajectory
 that has ended is dropped from the batch (and from the KV cache), so the batch shrinks as
-episodes finish. `Rows` is that batch; trajectories can also join it between steps, which the
-simulator's continuous batching of requests uses (world/continuous.py).
+episodes finish. `DecoderBatch` is that batch; trajectories can also join it between steps, which the
+world-model server's continuous batching of requests uses (world/continuous.py).
 """
 
 from __future__ import annotations
@@ -52,7 +52,7 @@ class Imagination:
     dones: np.ndarray  # [N, T + 1] bool
     lengths: np.ndarray  # [N] observations per trajectory
     token_probs: np.ndarray  # [N, T + 1, 14] float32
-    manual_version: int = 0  # the simulator's manual version it read (0: a manual given directly)
+    manual_version: int = 0  # the world-model server's manual version it read (0: a manual given directly)
 
     @property
     def returns(self) -> np.ndarray:
@@ -92,7 +92,7 @@ def _check_inputs(first_obs: np.ndarray, n: int) -> np.ndarray:
     return first
 
 
-class Rows:
+class DecoderBatch:
     """The running trajectories of a batch and the model state they carry between steps: their
     conditioning, KV cache, last done token, temperature and random numbers. Trajectories join
     (`admit`) and leave (`keep`) between steps, so the batch can be continuous: a one-shot request
@@ -272,7 +272,7 @@ def _pad_steps(uniforms: torch.Tensor, steps: int) -> torch.Tensor:
     return torch.nn.functional.pad(uniforms, (0, 0, 0, steps - uniforms.shape[1]))
 
 
-class Record:
+class Trajectories:
     """What has been imagined of n trajectories so far: step t of trajectory i at [i, t]. Filled
     from sampled token blocks here (`write`), or from decoded steps (`put`, `put_trajectory`: what
     `/lwm/imagine` answers)."""
@@ -330,10 +330,10 @@ def condition_rows(cond: Conditioning, n: int) -> Conditioning:
     return cond.index(torch.zeros(n, dtype=torch.long)) if given == 1 and n > 1 else cond
 
 
-class Rollout:
+class StepwiseImagination:
     """Step-wise imagination of n trajectories: the caller gives the actions of the running
     trajectories one step at a time (a policy acting inside imagination), and the KV cache stays
-    here between steps. `imagine` is a loop over it; the simulator keeps one per session.
+    here between steps. `imagine` is a loop over it; the world-model server keeps one per session.
 
     After `step`, the new observation of trajectory i is `observations[i, t]` for each i in the
     returned indices (those that were running), with `rewards`, `dones` and `token_probs` alike.
@@ -360,16 +360,16 @@ class Rollout:
             raise ValueError("temperature must be > 0")
         first = _check_inputs(first_obs, n)
         self.n, self.max_steps, self.stop_on_done = n, max_steps, stop_on_done
-        self._record = record = Record(first, max_steps)
-        # The record's arrays, written in place at each step (see the class docstring).
-        self.observations, self.actions, self.rewards = record.observations, record.actions, record.rewards
-        self.dones, self.token_probs, self.lengths = record.dones, record.token_probs, record.lengths
+        self._trajectories = so_far = Trajectories(first, max_steps)
+        # Its arrays, written in place at each step (see the class docstring).
+        self.observations, self.actions, self.rewards = so_far.observations, so_far.actions, so_far.rewards
+        self.dones, self.token_probs, self.lengths = so_far.dones, so_far.token_probs, so_far.lengths
         self.active = np.arange(n)
         self.t = 0
         seed = seed if seed is not None else int(torch.randint(2**31, ()).item())
-        from .decoding import make_rows  # decoding's paths build on Rows, defined here
+        from .decoding import make_decoder_batch  # decoding's paths build on DecoderBatch, defined here
 
-        self._rows = make_rows(model, decoding, use_cache)
+        self._rows = make_decoder_batch(model, decoding, use_cache)
         cond = condition_rows(model.condition_on(manual), n)
         self._rows.admit(cond, first, max_steps, temperature, torch.Generator().manual_seed(seed), constrained)
 
@@ -390,7 +390,7 @@ class Rollout:
         active = self.active
         self.t += 1
         block, probs = self._rows.step(torch.from_numpy(act))
-        done = self._record.write(active, self.t, act, block, probs)
+        done = self._trajectories.write(active, self.t, act, block, probs)
         if self.stop_on_done and done.any():
             keep = np.flatnonzero(~done)
             self.active = active[keep]
@@ -399,7 +399,7 @@ class Rollout:
         return active
 
     def result(self) -> Imagination:
-        return self._record.result()
+        return self._trajectories.result()
 
 
 @torch.no_grad()
@@ -432,7 +432,7 @@ def imagine(
     """
     if (actions is None) == (policy is None):
         raise ValueError("give either an action sequence or a policy")
-    if actions is not None:  # the rest (max_steps, first observations) Rollout checks
+    if actions is not None:  # the rest (max_steps, first observations) StepwiseImagination checks
         actions = np.asarray(actions)
         if actions.ndim == 1:
             actions = np.broadcast_to(actions, (n, actions.shape[0]))
@@ -440,7 +440,7 @@ def imagine(
             raise ShapeError(f"actions must be [{n}, >= {max_steps}], got {actions.shape}")
         if ((actions < 0) | (actions >= NUM_ACTIONS)).any():
             raise ValueError(f"actions must be in 0..{NUM_ACTIONS - 1}")
-    rollout = Rollout(
+    rollout = StepwiseImagination(
         model, manual, first_obs, n, max_steps, temperature, seed, use_cache, stop_on_done, constrained, decoding
     )
     while not rollout.finished:

@@ -1,22 +1,62 @@
-"""Where the shipped checkpoints live inside the package."""
+"""The checkpoints shipped inside the package, in one catalogue: where each lives, which world
+model kind it is, what tables call it, the recipe it was trained with (configs/NAME.json, a
+`lwm train` or `lwm agent bc` command), and what the project uses it for."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 from ..errors import LwmError
 
 CHECKPOINT_DIR = Path(__file__).resolve().parent.parent / "checkpoints"
-SHIPPED = {"emma": CHECKPOINT_DIR / "emma-lwm", "observational": CHECKPOINT_DIR / "observational"}
-SHIPPED_ORACLE = CHECKPOINT_DIR / "oracle"
-"""OracleParse, Table 3's reference: it reads the game's true parse, not a manual, so the simulator
-(which is given only descriptions) does not serve it."""
-SHIPPED_POLICY = CHECKPOINT_DIR / "policy-bc"
-"""The agent's warm-start policy (behaviour cloning on the training games), if shipped."""
 
 
-def shipped_checkpoint(kind: str = "emma") -> Path:
-    path = SHIPPED.get(kind)
-    if path is None or not (path / "config.json").is_file():
-        raise LwmError(f"no shipped {kind!r} checkpoint in {CHECKPOINT_DIR}; train one with 'lwm train'")
-    return path
+@dataclass(frozen=True)
+class ShippedModel:
+    key: str  # how commands, records and tables name it (`lwm agent table3 --models KEY=...`)
+    directory: str  # under lwm_models/checkpoints/; its recipe is configs/<directory>.json
+    kind: str  # world model kind (lwm_models/world/registry.py), or "policy"
+    title: str  # as the results tables name it
+    table3: bool = False  # one of the world models Table 3 compares by default
+
+    @property
+    def path(self) -> Path:
+        return CHECKPOINT_DIR / self.directory
+
+    @property
+    def present(self) -> bool:
+        return (self.path / "config.json").is_file()
+
+
+# World models in the paper's order. OracleParse reads the game's true parse, not a manual, so the
+# world-model server (which is given only descriptions) does not serve it; it is Table 3's reference.
+WORLD_MODELS = (
+    ShippedModel("observational", "observational", "observational", "Observational", table3=True),
+    ShippedModel("standard", "standard", "standard", "Standard"),
+    ShippedModel("gpthard", "gpthard", "gpthard", "GPTHard"),
+    ShippedModel("emma", "emma-lwm", "emma", "EMMA-LWM", table3=True),
+    ShippedModel("emma-freeform", "emma-lwm-freeform", "emma", "EMMA-LWM free-form"),
+    ShippedModel("oracle", "oracle", "oracle", "OracleParse", table3=True),
+)
+POLICY = ShippedModel("policy-bc", "policy-bc", "policy", "warm-start policy")
+"""The agent's warm-start policy (behaviour cloning on the training games)."""
+
+SHIPPED = {m.key: m.path for m in WORLD_MODELS}
+SHIPPED_POLICY = POLICY.path
+
+
+def shipped_checkpoint(key: str = "emma") -> Path:
+    """The shipped world model named `key` (see WORLD_MODELS); refused with the names there are."""
+    model = next((m for m in WORLD_MODELS if m.key == key), None)
+    if model is None:
+        raise LwmError(f"no shipped world model {key!r}; shipped: {', '.join(m.key for m in WORLD_MODELS)}")
+    if not model.present:
+        raise LwmError(f"the shipped {key!r} checkpoint is missing from {CHECKPOINT_DIR}; train one with 'lwm train'")
+    return model.path
+
+
+def table3_defaults() -> dict[str, Path]:
+    """The world models `lwm agent table3` compares when given none: those of the paper's Table 3
+    that are shipped."""
+    return {m.key: m.path for m in WORLD_MODELS if m.table3 and m.present}

@@ -2,7 +2,7 @@
 sampled exactly as the reference path samples it.
 
 A step of imagination samples 14 tokens (12 observation tokens, reward, done), and the reference
-path (imagine.Rows) makes one decoder call per token. Most of a Messenger step repeats the last
+path (imagine.DecoderBatch) makes one decoder call per token. Most of a Messenger step repeats the last
 observation: ids stay, immobile entities stay, and the avatar moves as its action says. So each step
 starts from a draft of its block (the last observation, the avatar moved by the action, no reward,
 not done; `draft_block`) and feeds the draft in one call. The hidden state after a token predicts
@@ -35,7 +35,7 @@ from ..messenger.constants import ACTION_DELTAS, GRID, NUM_ACTIONS
 from .base import WorldModel
 from .constraints import StepRules
 from .flat_decoder import FlatDecoder, RowCache, _Step, per_weights, scripted
-from .imagine import Rows
+from .imagine import DecoderBatch
 from .tokens import BLOCK, COL_OFFSET, FIRST_REWARD_LABEL, OBS_TOKENS, OBS_VOCAB, ROW_OFFSET
 
 STEP_TOKENS = OBS_TOKENS + 2  # tokens sampled per step: 12 observation tokens, reward, done
@@ -65,8 +65,8 @@ def draft_block(
     return block
 
 
-class FastRows(Rows):
-    """`Rows` on the flat decoder, drafting `lookahead` tokens per call (-1: by the rows in the
+class FlatDecoderBatch(DecoderBatch):
+    """`DecoderBatch` on the flat decoder, drafting `lookahead` tokens per call (-1: by the rows in the
     call, `_lookahead`; 0: one token per call as the reference path, on the flat decoder only)."""
 
     def __init__(self, model: WorldModel, first_blocks: int = 0, lookahead: int = -1) -> None:
@@ -79,7 +79,7 @@ class FastRows(Rows):
         self.calls = 0  # decoder calls made by steps (for benchmarks)
 
     def _first_block(self, tokens: torch.Tensor, cond) -> RowCache:
-        """The joining rows' cache holding their first block (kept per start as in `Rows`)."""
+        """The joining rows' cache holding their first block (kept per start as in `DecoderBatch`)."""
         n, width = tokens.shape
         joining = self.decoder.new_cache(n)
         key = self._start_key(tokens, cond) if self.max_first_blocks else None
@@ -102,7 +102,7 @@ class FastRows(Rows):
 
     @torch.inference_mode()
     def step(self, actions: torch.Tensor) -> tuple:
-        """As `Rows.step`: every row takes its action; returns the sampled blocks [rows, 14] and
+        """As `DecoderBatch.step`: every row takes its action; returns the sampled blocks [rows, 14] and
         each token's probability (numpy)."""
         b = len(self)
         everyone = torch.arange(b)
@@ -277,7 +277,7 @@ def _sample_slots(
     u: torch.Tensor,
     allowed: torch.Tensor | None,
 ) -> tuple[torch.Tensor, torch.Tensor]:
-    """Tokens [A, k] from the hidden states [A, k, H] that predict them, as `Rows._sample` draws
+    """Tokens [A, k] from the hidden states [A, k, H] that predict them, as `DecoderBatch._sample` draws
     each: the first token whose cumulative probability reaches the row's uniform number (under the
     allowed ones if constrained), and the model's unrestricted probability of it."""
     logits = F.linear(torch.relu(F.linear(hs, w1, b1)), w2, b2).float() / temperature[:, None, None]
@@ -360,4 +360,4 @@ def _allowed_at_or_before(allowed: torch.Tensor, token: torch.Tensor) -> torch.T
     return torch.where(last_below >= 0, last_below, allowed.float().argmax(-1))
 
 
-__all__ = ["FastRows", "draft_block"]
+__all__ = ["FlatDecoderBatch", "draft_block"]

@@ -34,9 +34,9 @@ from ..messenger.constants import ALL_TRIPLES
 from ..text.free_form import training_texts
 from ..text.pools import DescriptionPools
 from .base import LossOutput, WorldModel
-from .batches import SplitTokens, redraw_manuals
 from .checkpoint import load_checkpoint, publish, recover, save_checkpoint, write_checkpoint
 from .registry import PRESETS, build_model
+from .training_data import SplitTokens, redraw_manuals
 
 
 @dataclass

@@ -15,7 +15,7 @@ setup(
     entry_points={
         "console_scripts": [
             "lwm_env_node = lwm_nodes.env_node:main",
-            "lwm_simulator_node = lwm_nodes.simulator_node:main",
+            "lwm_world_model_node = lwm_nodes.world_model_node:main",
             "lwm_planner_node = lwm_nodes.planner_node:main",
             "lwm_human_node = lwm_nodes.human_node:main",
             "lwm_recorder_node = lwm_nodes.recorder_node:main",

@@ -155,7 +155,7 @@ def run(make_node: Callable[[], Node], stop: threading.Event | None = None, thre
     """Create the node, print READY, spin until SIGINT/SIGTERM, shut down in order, and end the
     process: within 2 s of the signal, under load (benchmarks/ros_stress.py shutdown).
     `threads` > 1 spins a MultiThreadedExecutor, for a node whose callbacks may wait on each other
-    (the simulator's service calls wait for their batch).
+    (the world-model server's service calls wait for their batch).
 
     rclpy's own signal handlers are off: they race with an early signal; an Event set by our
     handlers ends the spin loop instead (why: docs/ros.md, "Shutting down").

@@ -6,7 +6,7 @@ node's output (logs/<node>.log), forwards SIGINT/SIGTERM to the nodes, restarts 
 
 Before the nodes start, it makes sure the reviewers' key file exists (--keys-file, default
 LOG_DIR/reviewer_keys.json; created with random keys, mode 0600, if missing) and gives its path to
-the nodes that sign (the human node) or verify (the simulator and the planner).
+the nodes that sign (the human node) or verify (the world-model server and the planner).
 """
 
 from __future__ import annotations
@@ -106,8 +106,8 @@ def default_nodes(
     person: str = "terminal",
 ) -> list[NodeSpec]:
     """human: 'scripted', 'interactive', 'page' (the browser, on page_port; its history reads
-    `ledger`) or 'none'. The planner loads no world model: only the simulator gets the checkpoint.
-    keys_file: the reviewers' keys; trusted: the reviewers the simulator and the planner take
+    `ledger`) or 'none'. The planner loads no world model: only the world-model server gets the checkpoint.
+    keys_file: the reviewers' keys; trusted: the reviewers the world-model server and the planner take
     feedback from (comma-separated; empty: all in the key file)."""
     trust = {**({"keys_file": keys_file} if keys_file else {}), **({"trusted": trusted} if trusted else {})}
     signs = {"keys_file": keys_file} if keys_file else {}
@@ -118,8 +118,8 @@ def default_nodes(
             {"split": split, "index": str(index), "seed": str(seed), **({"texts": ",".join(texts)} if texts else {})},
         ),
         NodeSpec(
-            "simulator",
-            "lwm_nodes.simulator_node",
+            "world_model",
+            "lwm_nodes.world_model_node",
             {**({"checkpoint": checkpoint} if checkpoint else {}), **({"state": state} if state else {}), **trust},
         ),
         NodeSpec(
@@ -261,9 +261,9 @@ def describe_run(log_dir: Path, ledger: Path, state: Path, resumed: bool) -> str
     if state.is_file():
         try:
             saved = json.loads(state.read_text())
-            manual = f"; the simulator's manual v{saved.get('manual_version', '?')}"
+            manual = f"; the world-model server's manual v{saved.get('manual_version', '?')}"
         except (OSError, ValueError):
-            manual = f"; the simulator's state {state} cannot be read"
+            manual = f"; the world-model server's state {state} cannot be read"
     return (
         f"launcher: resuming the run in {log_dir}: {reviews} review(s) in its ledger, {finished} finished "
         f"(shown, not redone){manual}"
@@ -272,7 +272,9 @@ def describe_run(log_dir: Path, ledger: Path, state: Path, resumed: bool) -> str
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="run_nodes.sh", description="Start the LWM system's nodes.")
-    parser.add_argument("--checkpoint", default="", help="world model for the simulator (default: shipped EMMA-LWM)")
+    parser.add_argument(
+        "--checkpoint", default="", help="the world model the world-model server serves (default: shipped EMMA-LWM)"
+    )
     parser.add_argument("--split", default="newall-test", help="split of the game the environment runs")
     parser.add_argument("--index", type=int, default=0, help="game index in the split")
     parser.add_argument("--seed", type=int, default=0, help="episode seed")
@@ -280,7 +282,7 @@ def main(argv: list[str] | None = None) -> int:
         "--log-dir",
         type=Path,
         default=None,
-        help="this run's directory: each node's log, the review ledger, the simulator's manual, the policy "
+        help="this run's directory: each node's log, the review ledger, the world-model server's manual, the policy "
         "snapshots (default: a new logs/runs/<time>; logs/latest points at the newest)",
     )
     parser.add_argument(
@@ -291,7 +293,7 @@ def main(argv: list[str] | None = None) -> int:
         default=None,
         metavar="RUN_DIR",
         help="continue an earlier run: its reviews (a finished one is shown again, not redone), the manual the "
-        "simulator was given and the learnt policy (default RUN_DIR: the newest run, logs/latest)",
+        "world-model server was given and the learnt policy (default RUN_DIR: the newest run, logs/latest)",
     )
     parser.add_argument("--ready-timeout", type=float, default=120.0)
     parser.add_argument("--max-restarts", type=int, default=3)
@@ -302,7 +304,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--state",
         default=None,
-        help="the simulator's manual and version, kept across restarts (default: LOG_DIR/simulator_state.json)",
+        help="the world-model server's manual and version, kept across restarts "
+        "(default: LOG_DIR/world_model_state.json)",
     )
     parser.add_argument(
         "--keys-file",
@@ -314,8 +317,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--trusted",
         default="",
-        help="comma-separated reviewer ids the planner and simulator take feedback from (default: every reviewer "
-        "in the key file)",
+        help="comma-separated reviewer ids the planner and world-model server take feedback from "
+        "(default: every reviewer in the key file)",
     )
     parser.add_argument(
         "--iterations",
@@ -370,7 +373,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--only",
         default="",
-        help="comma-separated nodes to start here (env, simulator, planner, human), the others running on "
+        help="comma-separated nodes to start here (env, world_model, planner, human), the others running on "
         "another host of the same ROS domain (default: all)",
     )
     parser.add_argument(
@@ -404,8 +407,8 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as exc:
         parser.error(str(exc))
     ledger = Path(args.ledger) if args.ledger else args.log_dir / run_dirs.LEDGER_FILE
-    state = Path(args.state) if args.state is not None else args.log_dir / run_dirs.STATE_FILE
-    if args.resume is None and (args.only in ("", None) or "planner" in args.only or "simulator" in args.only):
+    state = Path(args.state) if args.state is not None else run_dirs.state_file(args.log_dir)
+    if args.resume is None and (args.only in ("", None) or "planner" in args.only or "world_model" in args.only):
         earlier = run_dirs.earlier_run_files(ledger, state)
         if earlier:
             parser.error(
@@ -465,9 +468,9 @@ def main(argv: list[str] | None = None) -> int:
     )
     if args.only:
         wanted = {name.strip() for name in args.only.split(",") if name.strip()}
-        unknown = wanted - {"env", "simulator", "planner", "human"}
+        unknown = wanted - {"env", "world_model", "planner", "human"}
         if unknown:
-            parser.error(f"--only: unknown nodes {', '.join(sorted(unknown))} (env, simulator, planner, human)")
+            parser.error(f"--only: unknown nodes {', '.join(sorted(unknown))} (env, world_model, planner, human)")
         nodes = [n for n in nodes if n.name in wanted]
     if args.record is not None:
         recorder = NodeSpec("recorder", "lwm_nodes.recorder_node", {"path": str(args.record.resolve())}, first=True)

@@ -1,7 +1,7 @@
 """Planner/agent node: a thin adapter between ROS and the review loop of lwm_models.agent.review.
 
-It holds no world model: everything it imagines goes through the simulator's /lwm/imagine
-(step-wise sessions for the policy acting in imagination). It follows the simulator's manual
+It holds no world model: everything it imagines goes through the world-model server's /lwm/imagine
+(step-wise sessions for the policy acting in imagination). It follows the world-model server's manual
 version on /lwm/status (a new version re-plans), opens a review for each fresh episode on
 /env/state, publishes plans (/planner/plan), label requests (/planner/label_request) and execution
 reports (/planner/report), takes /review/feedback and /review/labels, and acts in the real game

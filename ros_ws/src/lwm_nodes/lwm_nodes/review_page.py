@@ -33,6 +33,14 @@ RETRY_MS = 1000  # how soon a page whose stream broke (a node restart) connects 
 MAX_BODY = 1 << 20
 
 
+class Refused(ValueError):
+    """The receiving node refused what the person sent; the message is its reason."""
+
+
+class NoAnswer(ValueError):
+    """Nothing answered what the person sent in time (it may still be taken)."""
+
+
 class ReviewPage:
     """What the page shows and where its answers go. on_feedback, on_labels and on_manual take the
     body of a POST and return the receiving node's words (shown beside the control), or raise to
@@ -179,7 +187,7 @@ def _handler(page: ReviewPage) -> type[BaseHTTPRequestHandler]:
                     raise ValueError("send a JSON object")
                 said = handle(body)
             except Exception as exc:  # the person sees why, in words; the node keeps serving
-                pending = type(exc).__name__ == "NoAnswer"  # sent, but nobody answered yet
+                pending = isinstance(exc, NoAnswer)  # sent, but nobody answered yet
                 status = HTTPStatus.ACCEPTED if pending else HTTPStatus.BAD_REQUEST
                 return self._answer(status, plain_reason(exc))
             self._answer(HTTPStatus.OK, said or "taken")

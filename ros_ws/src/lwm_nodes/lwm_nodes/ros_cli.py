@@ -78,7 +78,11 @@ def cmd_graph(node: Node, what: str, settle: float) -> int:
 
 
 # Topics whose receiving node answers every message on /lwm/acks (taken, or refused and why).
-ACKED_TOPICS = {"/review/feedback": "the planner", "/review/labels": "the planner", "/feedback/manual": "the simulator"}
+ACKED_TOPICS = {
+    "/review/feedback": "the planner",
+    "/review/labels": "the planner",
+    "/feedback/manual": "the world-model server",
+}
 NO_ANSWER = 3  # exit status when no node answered in time (1: refused, 2: bad usage or input)
 
 
@@ -296,8 +300,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--sign",
         metavar="REVIEWER",
         default=None,
-        help="sign as this reviewer (adds reviewer and signature; needs --kind): the planner and the simulator "
-        "take feedback only from reviewers they trust",
+        help="sign as this reviewer (adds reviewer and signature; needs --kind): the planner and the world-model "
+        "server take feedback only from reviewers they trust",
     )
     s.add_argument("--keys-file", type=Path, default=DEFAULT_KEYS, help="the reviewers' keys (default: %(default)s)")
     s.add_argument(

@@ -1,6 +1,6 @@
 """Reviewer signatures in the nodes: parameters and thin adapters over lwm_models.signing.
 
-A node that learns from feedback (planner: /review/feedback and /review/labels; simulator:
+A node that learns from feedback (planner: /review/feedback and /review/labels; world-model server:
 /feedback/manual) declares `keys_file` and `trusted` and takes a payload only if a trusted
 reviewer signed it; the human-feedback node declares `keys_file` and `reviewer` and signs what it
 publishes.
@@ -78,7 +78,7 @@ class Signer:
 
     def become(self, reviewer: str) -> str:
         """Sign as `reviewer` from now on, with their own key (added to the key file if they have
-        none: the planner and simulator read the file again when they first see the name)."""
+        none: the planner and world-model server read the file again when they first see the name)."""
         reviewer = signing.check_reviewer_id(reviewer)
         key = signing.ensure_key_file(self.path, [reviewer])[reviewer]
         with self.lock:

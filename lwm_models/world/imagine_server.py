@@ -1,7 +1,7 @@
 """Continuous batching of /lwm/imagine: concurrent one-shot requests share the model's steps.
 
 A step of the world model costs about the same for one trajectory as for sixteen (it is bound by
-per-operation overhead, not arithmetic), so a simulator serving clients one at a time wastes most
+per-operation overhead, not arithmetic), so a world-model server serving clients one at a time wastes most
 of its time. `ImagineServer.serve` is called from many threads at once (the node's service
 callbacks); one worker thread runs a `ContinuousBatch`: before each step it admits every request
 that has queued (first come, first served, up to the batch's row limit), and a request is answered
@@ -11,9 +11,9 @@ request starts at once, and one that arrives under load joins at the next step.
 Each request keeps its own seeded random stream inside the batch, so its answer is the one it
 would get alone. Session ops (open/step/close) are not batched: they run in the caller's thread.
 
-`WorkerImagineServer` runs the same batch in a process of its own (world/batch_worker.py), so that
+`WorkerImagineServer` runs the same batch in a process of its own (world/imagine_worker.py), so that
 the model's steps do not share a GIL with the threads that receive and answer the calls: what the
-simulator node uses.
+world-model server node uses.
 """
 
 from __future__ import annotations
@@ -29,10 +29,10 @@ from dataclasses import dataclass, field
 from multiprocessing.connection import Connection
 
 from ..errors import LwmError
-from .batch_worker import STOP, await_ready, launch_worker, track_message
-from .continuous import MAX_ROWS, ContinuousBatch, Track
+from .continuous import MAX_ROWS, ContinuousBatch, OneShot
 from .imagine import Imagination
-from .simulator import Simulator, serve_json
+from .imagine_worker import STOP, await_ready, launch_worker, shot_message
+from .model_server import WorldModelServer, serve_json
 
 
 class ShuttingDown(LwmError):
@@ -47,7 +47,7 @@ class WorkerLost(LwmError):
 class _Job:
     request: dict
     size: int  # trajectories
-    track: Track | None = None  # built by the server (WorkerImagineServer)
+    shot: OneShot | None = None  # built by the server (WorkerImagineServer)
     done: threading.Event = field(default_factory=threading.Event)
     response: dict | None = None
     error: Exception | None = None
@@ -58,9 +58,9 @@ class _Job:
 
 
 class ImagineServer:
-    """Thread-safe request-string -> response-string service over a Simulator."""
+    """Thread-safe request-string -> response-string service over a WorldModelServer."""
 
-    def __init__(self, sim: Simulator, max_trajectories: int = MAX_ROWS) -> None:
+    def __init__(self, sim: WorldModelServer, max_trajectories: int = MAX_ROWS) -> None:
         self.sim = sim
         self.batch = ContinuousBatch(sim.model, max_trajectories)
         self.requests = 0  # one-shot requests answered: for status and benchmarks
@@ -80,12 +80,12 @@ class ImagineServer:
         if not self.sim.is_one_shot(request):
             return self.sim.handle(request)
         if self._closed.is_set():
-            raise ShuttingDown("the simulator is shutting down")
+            raise ShuttingDown("the world-model server is shutting down")
         began = time.perf_counter()
         job, answerer = self._submit(request)
         while not job.done.wait(0.5):
             if not answerer.is_alive():  # it stopped after this job was submitted
-                raise ShuttingDown("the simulator is shutting down")
+                raise ShuttingDown("the world-model server is shutting down")
         if job.error is not None:
             raise job.error
         return {**self._response(job), "seconds": round(time.perf_counter() - began, 4)}
@@ -117,7 +117,7 @@ class ImagineServer:
             closing = self._take(waiting, wait=not self.batch and not waiting) or closing
             if closing:
                 while waiting:
-                    waiting.popleft().finish(error=ShuttingDown("the simulator is shutting down"))
+                    waiting.popleft().finish(error=ShuttingDown("the world-model server is shutting down"))
                 if not self.batch:
                     return
             while waiting and self.batch.fits(waiting[0].size):
@@ -140,27 +140,27 @@ class ImagineServer:
 
     def _admit(self, job: _Job) -> None:
         try:
-            track = self.sim.one_shot(job.request)
+            shot = self.sim.one_shot(job.request)
         except Exception as exc:  # this request alone is refused
             job.finish(error=exc)
             return
-        track.info["job"] = job
-        self.batch.admit(track)
+        shot.info["job"] = job
+        self.batch.admit(shot)
 
     def _step(self) -> None:
         try:
             ended = self.batch.step()
         except Exception as exc:  # not expected: fail what was running, keep serving
-            for track in self.batch.tracks:
-                track.info["job"].finish(error=exc)
+            for shot in self.batch.shots:
+                shot.info["job"].finish(error=exc)
             self.batch = ContinuousBatch(self.sim.model, self.batch.max_rows)
             return
-        for track in ended:
-            self._answer(track)
+        for shot in ended:
+            self._answer(shot)
 
-    def _answer(self, track: Track) -> None:
+    def _answer(self, shot: OneShot) -> None:
         self.requests += 1
-        track.info["job"].finish({**self.sim.answer(track), "batched": track.peak})
+        shot.info["job"].finish({**self.sim.answer(shot), "batched": shot.peak})
 
 
 class _Worker:
@@ -185,15 +185,15 @@ class _Worker:
             # Checked under the lock that stop() takes: a call that comes after the STOP is refused
             # as the server's stop, not as a lost worker (which would invite a retry).
             if self._closed.is_set():
-                raise ShuttingDown("the simulator is shutting down")
+                raise ShuttingDown("the world-model server is shutting down")
             self.jobs[key] = job
             self.load += job.size
             try:
-                self.conn.send(track_message(key, job.track))
+                self.conn.send(shot_message(key, job.shot))
             except (OSError, ValueError):  # the process is gone; the receiver starts another
                 self._pop(key)
                 if self._closed.is_set():
-                    raise ShuttingDown("the simulator is shutting down") from None
+                    raise ShuttingDown("the world-model server is shutting down") from None
                 raise WorkerLost("the imagination worker stopped; try again") from None
 
     def stop(self) -> None:
@@ -233,7 +233,7 @@ class _Worker:
                 key, payload, peak = self.conn.recv()
             except (EOFError, OSError):
                 if self._closed.is_set():
-                    return self.fail_all(ShuttingDown("the simulator is shutting down"))
+                    return self.fail_all(ShuttingDown("the world-model server is shutting down"))
                 self.fail_all(WorkerLost("the imagination worker stopped; try again"))
                 if not self._restart():
                     return
@@ -264,7 +264,7 @@ class _Worker:
 
 class WorkerImagineServer(ImagineServer):
     """The ImagineServer with its batches in worker processes. The server's threads parse each call
-    and build its track (conditioning on the manual current when it arrives) and send it to the
+    and build its `OneShot` (conditioning on the manual current when it arrives) and send it to the
     worker with the fewest trajectories in hand; the worker admits it into its continuous batch,
     steps and sends back what was imagined; a receiver thread per worker hands each answer to its
     caller. A worker that dies is started again: the calls it was imagining get an error, later
@@ -274,7 +274,9 @@ class WorkerImagineServer(ImagineServer):
     the small model costs nearly as much for one row as for eight, so one worker gives 8 clients
     the most rows per step; a second one uses a second core (docs/benchmarks.md)."""
 
-    def __init__(self, sim: Simulator, max_trajectories: int = MAX_ROWS, threads: int = 1, workers: int = 1) -> None:
+    def __init__(
+        self, sim: WorldModelServer, max_trajectories: int = MAX_ROWS, threads: int = 1, workers: int = 1
+    ) -> None:
         if workers < 1:
             raise ValueError(f"workers must be >= 1, got {workers}")
         self.sim = sim
@@ -297,8 +299,8 @@ class WorkerImagineServer(ImagineServer):
         return sum(w.restarts for w in self.workers)
 
     def _submit(self, request: dict) -> tuple[_Job, threading.Thread]:
-        track = self.sim.one_shot(request)  # a request that cannot be served fails here, alone
-        job = _Job(request, track.size, track)
+        shot = self.sim.one_shot(request)  # a request that cannot be served fails here, alone
+        job = _Job(request, shot.size, shot)
         with self._pick:
             worker = min(self.workers, key=lambda w: w.load)
             worker.submit(next(self._ids), job)
@@ -307,7 +309,7 @@ class WorkerImagineServer(ImagineServer):
     def _response(self, job: _Job) -> dict:
         imagination, peak = job.response
         self.requests += 1
-        return {**self.sim.response(imagination, job.track.info), "batched": peak}
+        return {**self.sim.response(imagination, job.shot.info), "batched": peak}
 
     def close(self, timeout: float = 1.0) -> None:
         """Stop: each worker answers what it is imagining for up to `timeout` seconds in all and
@@ -320,7 +322,7 @@ class WorkerImagineServer(ImagineServer):
             worker.wait(deadline - time.monotonic())
         for worker in self.workers:
             worker.receiver.join(0.05)
-            worker.fail_all(ShuttingDown("the simulator is shutting down"))
+            worker.fail_all(ShuttingDown("the world-model server is shutting down"))
 
 
 __all__ = ["ImagineServer", "ShuttingDown", "WorkerImagineServer", "WorkerLost"]

@@ -1,6 +1,6 @@
-"""The LWM simulator: the one owner of the world model, the current manual and its version.
+"""The world-model server: the one owner of the world model, the current manual and its version.
 
-This is the ROS-free engine behind the simulator node (and anything else that serves
+This is the ROS-free engine behind the world-model server node (and anything else that serves
 `/lwm/imagine`). It answers imagine requests (msgs_json/imagine_request), by `op`:
 - `imagine` (the default): one-shot, batched; each trajectory replays its action sequence (or
   random actions) from its start observation;
@@ -10,7 +10,7 @@ This is the ROS-free engine behind the simulator node (and anything else that se
   current when it opened and says which version that was.
 
 Manuals: each replacement that changes the text is a new version; the state (manual, version,
-source, game) is written atomically to `state_path` when given, so a restarted simulator keeps
+source, game) is written atomically to `state_path` when given, so a restarted world-model server keeps
 counting from where it was instead of handing out version 1 again.
 """
 
@@ -32,26 +32,26 @@ from ..data.episode import game_of
 from ..errors import LwmError
 from .base import Conditioning
 from .checkpoint import load_checkpoint
-from .continuous import Track, run_alone
+from .continuous import OneShot, run_alone
 from .frozen_text import FrozenTextEncoder
-from .imagine import Imagination, Rollout, condition_rows
+from .imagine import Imagination, StepwiseImagination, condition_rows
 from .manual import ManualBatch
 from .reading import grounding, read_identities, ungrounded_note
 from .shipped import shipped_checkpoint
 
 
 class RequestError(LwmError, ValueError):
-    """An imagine request the simulator cannot serve (a bad state, an unknown session, ...)."""
+    """An imagine request the world-model server cannot serve (a bad state, an unknown session, ...)."""
 
 
 @dataclass
 class Session:
-    rollout: Rollout
+    rollout: StepwiseImagination
     manual_version: int
     last_used: float = field(default_factory=time.monotonic)
 
 
-class Simulator:
+class WorldModelServer:
     def __init__(
         self,
         checkpoint: str | Path | None = None,
@@ -64,7 +64,7 @@ class Simulator:
         self.model, self.config = load_checkpoint(self.checkpoint)
         self.kind = self.config["kind"]
         if self.model.needs_parse:
-            raise LwmError(f"the simulator serves models that read manuals as text; {self.kind} needs true parses")
+            raise LwmError(f"the server serves models that read manuals as text; {self.kind} needs true parses")
         self.encoder = encoder if encoder is not None else self.model.frozen_text_encoder()
         self.manual: list[str] | None = None
         self.reading: list[str | None] | None = None  # the identity the model reads each description as about
@@ -137,7 +137,7 @@ class Simulator:
 
     def _status(self) -> dict:
         out = {
-            "node": "lwm_simulator",
+            "node": "lwm_world_model",
             "ready": True,
             "model": self.model_name,
             "checkpoint": str(self.checkpoint),
@@ -177,7 +177,7 @@ class Simulator:
             self.manual_source = str(state.get("source", ""))
             self.game = str(state.get("game", ""))
         except (OSError, ValueError, TypeError, KeyError) as exc:
-            raise LwmError(f"cannot read the simulator state {self.state_path}: {exc}") from None
+            raise LwmError(f"cannot read the world-model server state {self.state_path}: {exc}") from None
 
     # ------------------------------------------------------------------ requests
     def handle(self, request: dict) -> dict:
@@ -217,23 +217,23 @@ class Simulator:
 
     def imagine(self, request: dict) -> dict:
         """One-shot imagination (op `imagine`), in a batch of its own."""
-        track = self.one_shot(request)
-        run_alone(self.model, track)
-        return self.answer(track)
+        shot = self.one_shot(request)
+        run_alone(self.model, shot)
+        return self.answer(shot)
 
     @staticmethod
     def is_one_shot(request: dict) -> bool:
         """Whether a request can join a continuous batch (an `imagine`, not a session op)."""
         return request.get("op", "imagine") == "imagine"
 
-    def one_shot(self, request: dict) -> Track:
-        """A one-shot request as a track of a continuous batch (raises RequestError for a request
+    def one_shot(self, request: dict) -> OneShot:
+        """A one-shot request as a `OneShot` of a continuous batch (raises RequestError for a request
         that cannot be served). It reads the manual current now, whenever its steps run."""
         with self.lock:
             batch, manual, version = self._manual_for(request)
         max_steps = int(request.get("max_steps", 32))
         starts, actions = self._trajectories(request, max_steps)
-        return Track(
+        return OneShot(
             condition_rows(self._conditioning(batch), len(starts)),
             starts,
             actions,
@@ -255,9 +255,9 @@ class Simulator:
             self._cond = (batch, cond)
         return cond
 
-    def answer(self, track: Track) -> dict:
-        """The response to a one-shot request whose track has ended."""
-        return self.response(track.result(), track.info)
+    def answer(self, shot: OneShot) -> dict:
+        """The response to a one-shot request that has ended."""
+        return self.response(shot.result(), shot.info)
 
     def response(self, imagination: Imagination, info: dict) -> dict:
         """The response to a one-shot request: what was imagined, under the manual in `info`."""
@@ -287,7 +287,7 @@ class Simulator:
             raise RequestError(f"{self.max_sessions} imagination sessions are open; close one first")
         batch, manual, version = self._manual_for(request)
         starts = self._starts(request)
-        rollout = Rollout(
+        rollout = StepwiseImagination(
             self.model,
             batch,
             starts,
@@ -355,7 +355,9 @@ def error_response(error: Exception) -> dict:
     return {"ok": False, "error": str(error)}
 
 
-def serve_json(sim: Simulator, text: str, handle: Callable[[dict], dict] | None = None) -> tuple[str, Exception | None]:
+def serve_json(
+    sim: WorldModelServer, text: str, handle: Callable[[dict], dict] | None = None
+) -> tuple[str, Exception | None]:
     """What the service answers to a request string (a valid response, never an exception), and
     the error when the request was refused, for the caller to report. `handle` (default
     `sim.handle`) answers a valid request: the ImagineServer passes its batching one."""
@@ -366,4 +368,4 @@ def serve_json(sim: Simulator, text: str, handle: Callable[[dict], dict] | None 
         return messages.dump("imagine_response", error_response(exc)), exc
 
 
-__all__ = ["RequestError", "Simulator", "error_response", "serve_json"]
+__all__ = ["RequestError", "WorldModelServer", "error_response", "serve_json"]

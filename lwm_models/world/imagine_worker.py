@@ -1,15 +1,15 @@
 """The continuous batch in a process of its own: the model's steps off the server's GIL.
 
-In the simulator node the batch worker shared one GIL with the ROS executor threads that receive,
+In the world-model server node the batch worker shared one GIL with the ROS executor threads that receive,
 parse and answer the calls. Under 8 clients that process used 97% of one core while the other
 core was idle, and the ROS work cost about a quarter of the calls per second that the same batch
-ran without ROS (measured; docs/benchmarks.md, "The simulator under load"). Here the server process keeps the
-manual, parses requests, builds each call's track (its conditioning, start observations, actions)
-and answers; the worker process only admits tracks, steps the model and sends back what was
+ran without ROS (measured; docs/benchmarks.md, "The world-model server under load"). Here the server process keeps the
+manual, parses requests, builds each call's OneShot (its conditioning, start observations, actions)
+and answers; the worker process only admits one-shot requests, steps the model and sends back what was
 imagined. A call's answer is the same as in a thread: the same model, the same seeded random
 stream per call.
 
-The worker reads the checkpoint itself (nothing big crosses the pipe: a track's conditioning is
+The worker reads the checkpoint itself (nothing big crosses the pipe: a one-shot request's conditioning is
 one manual's id table, the answer a few small arrays). It ends when the server tells it to, or when
 the pipe closes because the server died.
 """
@@ -27,26 +27,26 @@ from pathlib import Path
 import torch
 
 from .base import Conditioning
-from .continuous import ContinuousBatch, Track
+from .continuous import ContinuousBatch, OneShot
 
 STOP = None  # the server's last message: answer what runs, refuse what waits, then exit
 
 
-def track_message(job: int, track: Track) -> tuple:
+def shot_message(job: int, shot: OneShot) -> tuple:
     """What crosses the pipe for one call: plain arrays, so that no tensor is shared between
     processes (torch would pass them through shared-memory files)."""
-    cond = {k: None if v is None else v.numpy() for k, v in vars(track.cond).items()}
-    return (job, cond, track.first, track.actions, track.max_steps, track.temperature, track.seed, track.constrained)
+    cond = {k: None if v is None else v.numpy() for k, v in vars(shot.cond).items()}
+    return (job, cond, shot.first, shot.actions, shot.max_steps, shot.temperature, shot.seed, shot.constrained)
 
 
-def _track(message: tuple) -> tuple[int, Track]:
+def _shot(message: tuple) -> tuple[int, OneShot]:
     job, cond, first, actions, max_steps, temperature, seed, constrained = message
     cond = Conditioning(**{k: None if v is None else torch.from_numpy(v) for k, v in cond.items()})
-    return job, Track(cond, first, actions, max_steps, temperature, seed, constrained)
+    return job, OneShot(cond, first, actions, max_steps, temperature, seed, constrained)
 
 
 def serve_batches(conn: Connection, checkpoint: str, max_rows: int, threads: int) -> None:
-    """The worker process: tracks in, (job, imagination or error, peak) out, until STOP or EOF."""
+    """The worker process: one-shot requests in, (job, imagination or error, peak) out, until STOP or EOF."""
     from .checkpoint import load_checkpoint
 
     # Its life is the pipe's: a Ctrl-C in the terminal or a SIGTERM to the process group is the
@@ -56,7 +56,7 @@ def serve_batches(conn: Connection, checkpoint: str, max_rows: int, threads: int
     torch.set_num_threads(max(1, threads))
     model, _ = load_checkpoint(Path(checkpoint))
     batch = ContinuousBatch(model, max_rows)
-    waiting: deque[tuple[int, Track]] = deque()
+    waiting: deque[tuple[int, OneShot]] = deque()
     stopping = False
     conn.send(("ready", None, 0))
     try:
@@ -70,19 +70,19 @@ def serve_batches(conn: Connection, checkpoint: str, max_rows: int, threads: int
                     stopping = True
                     break
                 try:
-                    waiting.append(_track(message))
+                    waiting.append(_shot(message))
                 except Exception as exc:  # this call alone is refused
                     conn.send((message[0], f"{type(exc).__name__}: {exc}", 0))
             if stopping:
                 while waiting:
-                    conn.send((waiting.popleft()[0], "the simulator is shutting down", 0))
+                    conn.send((waiting.popleft()[0], "the world-model server is shutting down", 0))
             while waiting and batch.fits(waiting[0][1].size):
-                job, track = waiting.popleft()
-                track.info["job"] = job
-                batch.admit(track)
+                job, shot = waiting.popleft()
+                shot.info["job"] = job
+                batch.admit(shot)
             if batch:
-                for track in batch.step():
-                    conn.send((track.info["job"], track.result(), track.peak))
+                for shot in batch.step():
+                    conn.send((shot.info["job"], shot.result(), shot.peak))
     except (EOFError, OSError):  # the server is gone
         return
 
@@ -115,7 +115,7 @@ def main(argv: list[str]) -> None:
     serve_batches(Connection(int(fd)), checkpoint, int(max_rows), int(threads))
 
 
-__all__ = ["STOP", "await_ready", "launch_worker", "serve_batches", "track_message"]
+__all__ = ["STOP", "await_ready", "launch_worker", "serve_batches", "shot_message"]
 
 
 if __name__ == "__main__":

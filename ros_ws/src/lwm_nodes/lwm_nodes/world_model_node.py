@@ -1,13 +1,13 @@
-"""LWM simulator node: the one owner of the world model, serving /lwm/imagine.
+"""World-model server node: the one owner of the world model, serving /lwm/imagine.
 
-It holds the model, the current manual and its version (lwm_models.world.simulator.Simulator).
+It holds the model, the current manual and its version (lwm_models.world.model_server.WorldModelServer).
 /feedback/manual is the one way to change the manual (each change a new version); the
 environment's manual (/env/manual) is the default for each new game. /lwm/status (latched) says
 which manual version is current, so the planner re-plans when it changes. The manual and its
 version survive a restart (parameter `state`).
 
 Concurrent /lwm/imagine calls are served by a pool of executor threads; one-shot calls share the
-model's steps (continuous batching, lwm_models.world.batching) in a worker process of the node's
+model's steps (continuous batching, lwm_models.world.imagine_server) in a worker process of the node's
 own, so that stepping the model does not compete for this process's GIL with the threads that
 receive and answer calls. SERVICE_THREADS bounds how many calls wait at once.
 """
@@ -17,8 +17,8 @@ from __future__ import annotations
 from lwm_interfaces.srv import Json
 from rclpy.callback_groups import ReentrantCallbackGroup
 
-from lwm_models.world.batching import WorkerImagineServer
-from lwm_models.world.simulator import Simulator
+from lwm_models.world.imagine_server import WorkerImagineServer
+from lwm_models.world.model_server import WorldModelServer
 from lwm_nodes.common import LATCHED, JsonNode, run
 from lwm_nodes.trust import declare_keyring, verified
 
@@ -27,13 +27,13 @@ SERVICE_THREADS = 16  # executor threads of the node: calls that can wait for a 
 
 class SimulatorNode(JsonNode):
     def __init__(self) -> None:
-        super().__init__("lwm_simulator")
+        super().__init__("lwm_world_model")
         checkpoint = self.declare_parameter("checkpoint", "").value
         threads = self.declare_threads()
         state = self.declare_parameter("state", "").value  # JSON file keeping manual and version
         self.follow_env = self.declare_parameter("follow_env_manual", True).value
         max_sessions = int(self.declare_parameter("max_sessions", 32).value)
-        self.sim = Simulator(checkpoint or None, state_path=state or None, max_sessions=max_sessions)
+        self.sim = WorldModelServer(checkpoint or None, state_path=state or None, max_sessions=max_sessions)
         if self.sim.encoder is not None:
             # A new manual's first uncached text would otherwise load the text model (about 4 s
             # of a language feedback's time to the revised plan, measured).
