@@ -315,6 +315,47 @@ def effort(base: str) -> list[str]:
     return lines
 
 
+def teaching_minibatch(base: str) -> list[str]:
+    """Self-teaching with minibatches of 64 labelled states against 256, the same games and seeds
+    (benchmarks/human_effort.py, EMMA-LWM): real return, paired difference, wait and its parts."""
+    import numpy as np
+
+    sys.path.insert(0, str(ROOT))
+    from lwm_models.stats import mean_interval
+
+    def records(name: str) -> dict:
+        rows = (json.loads(line) for line in (RESULTS / name).read_text().splitlines() if line.strip())
+        return {(r["model"], r["game"], r["budget"]): r for r in rows}
+
+    old_path, new_path = "human_effort/records.jsonl", "human_effort/records-emma-minibatch-64.jsonl"
+    old, new = records(old_path), records(new_path)
+    lines = [
+        "| labels asked at most | minibatch 256 | minibatch 64 | 64 - 256, paired | wait, median (256 / 64) "
+        "| learning | imagining |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for budget in sorted({k[2] for k in new}):
+        keys = sorted(k for k in new if k[2] == budget and k in old)
+        a = np.array([old[k]["return"] for k in keys])
+        b = np.array([new[k]["return"] for k in keys])
+        cells = []
+        for values in (a, b, b - a):
+            m, lo, hi = mean_interval(values)
+            cells.append(f"{m:+.2f} ({lo:+.2f}, {hi:+.2f})")
+
+        def median(rows, key=None):
+            return float(np.median([r["wait_seconds"] if key is None else r["seconds"][key] for r in rows]))
+
+        before, after = [old[k] for k in keys], [new[k] for k in keys]
+        parts = [f"{median(before, key):.1f} / {median(after, key):.1f} s" for key in (None, "fit", "imagine")]
+        lines.append(f"| {budget} ({len(keys)} games) | " + " | ".join(cells + parts) + " |")
+    lines.append(
+        f"\nMean real return (95% t interval), 48 real episodes per game; {_link(old_path, base)}, "
+        f"{_link(new_path, base)}. The two were run on different days: the waits are not one run's."
+    )
+    return lines
+
+
 LANGUAGE_MODELS = (
     ("emma-lwm", "EMMA-LWM"),
     ("emma-lwm-freeform", "EMMA-LWM free-form"),
@@ -412,6 +453,7 @@ def read_back_summary(base: str) -> list[str]:
 
 TABLES: dict[str, Callable[[str], list[str]]] = {
     "effort": effort,
+    "teaching-minibatch": teaching_minibatch,
     "read-back-summary": read_back_summary,
     "language": language,
     "read-back": read_back,

@@ -401,6 +401,9 @@ def main(argv: list[str] | None = None) -> int:
         help="review in the browser: the human-feedback node serves the review page on localhost:PORT",
     )
     args = parser.parse_args(argv)
+    if args.only and "simulator" in args.only.split(","):  # its name until 2026-11-26, kept as an alias
+        args.only = ",".join("world_model" if n == "simulator" else n for n in args.only.split(","))
+        print("launcher: --only simulator is now called world_model (the world-model server)", flush=True)
     ros_environment()
     try:
         args.log_dir, keys_default = choose_run_dir(args.log_dir, args.resume)
