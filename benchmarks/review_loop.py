@@ -35,6 +35,7 @@ from lwm_nodes import domains  # noqa: E402
 
 from lwm_models.data.splits import load_split  # noqa: E402
 from lwm_models.ledger import Ledger  # noqa: E402
+from lwm_models.run_dirs import LEDGER_FILE  # noqa: E402
 from lwm_models.stats import mean_interval  # noqa: E402
 from lwm_models.world.shipped import SHIPPED  # noqa: E402
 
@@ -45,7 +46,7 @@ STATS = re.compile(r"imagine calls (\d+), round trip ([\d.]+) s, world-model ser
 
 def run_game(index: int, seed: int, args, work: Path) -> dict:
     logs = work / f"game{index}"
-    ledger = logs / "ledger.sqlite"
+    ledger = logs / LEDGER_FILE
     cmd = [sys.executable, "-m", "lwm_nodes.launcher", "--scripted", "--quiet", "--split", args.split]
     cmd += ["--index", str(index), "--seed", str(seed), "--log-dir", str(logs), "--ledger", str(ledger)]
     cmd += ["--teach", args.teach] + (["--texts", *args.texts] if args.texts else [])

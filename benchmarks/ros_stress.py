@@ -48,6 +48,8 @@ from pathlib import Path
 
 import numpy as np
 
+from lwm_models.run_dirs import LEDGER_FILE
+
 if "ROS_DOMAIN_ID" not in os.environ:  # one no other run on this machine holds
     from lwm_nodes import domains
 
@@ -109,7 +111,7 @@ class System:
 
     def __init__(self, extra: list[str] | None = None, human: str = "--no-human", restarts: int = 0) -> None:
         self.dir = Path(tempfile.mkdtemp(prefix="lwm-stress-"))
-        self.ledger = self.dir / "ledger.sqlite"
+        self.ledger = self.dir / LEDGER_FILE
         cmd = [sys.executable, "-m", "lwm_nodes.launcher", human, "--quiet", "--max-restarts", str(restarts)]
         cmd += ["--log-dir", str(self.dir), "--ledger", str(self.ledger), *(extra or [])]
         self.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, cwd=ROOT)
