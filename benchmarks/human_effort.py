@@ -119,7 +119,7 @@ def run(args: argparse.Namespace) -> list[dict]:
             "roles_p": summary["p"],
             "wait_seconds": round(waited, 2),
             "seconds": summary["seconds"],
-            "teaching": {k: v for k, v in teaching.__dict__.items() if k not in ("label_budget", "per_round")},
+            "teaching": setting,
             "per_round": per_round,
             "threads": args.threads,
             "checkpoint": config.get("sha256"),

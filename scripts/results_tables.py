@@ -52,6 +52,11 @@ def _load(name: str) -> dict:
     return json.loads((RESULTS / name).read_text())
 
 
+def _load_jsonl(name: str) -> list[dict]:
+    """The records of a JSONL file in results/, one per non-empty line."""
+    return [json.loads(line) for line in (RESULTS / name).read_text().splitlines() if line.strip()]
+
+
 def _paper_table3() -> dict:
     from lwm_models.cli.table3 import PAPER
 
@@ -174,11 +179,10 @@ def summary(base: str) -> list[str]:
 
 
 def review_loop(base: str) -> list[str]:
-    sys.path.insert(0, str(ROOT))
     from lwm_models.stats import mean_interval
 
     path = "review-loop/emma-lwm.jsonl"
-    games = [json.loads(line) for line in (RESULTS / path).read_text().splitlines() if line.strip()]
+    games = _load_jsonl(path)
     mean, low, high = mean_interval([g["real_return"] for g in games])
     outcomes = [g["outcome"] for g in games]
     counts = ", ".join(f"{outcomes.count(o)} {o}" for o in ("won", "died", "time_limit", "aborted") if o in outcomes)
@@ -203,7 +207,7 @@ def review_loop_variants(base: str) -> list[str]:
         ("review-loop/plans-rules.jsonl", "rules / raw (`--constrained`, the default)"),
         ("review-loop/plans-and-learning-rules.jsonl", "rules / rules (`--constrained --constrained-learning`)"),
     ):
-        games = [json.loads(line) for line in (RESULTS / path).read_text().splitlines() if line.strip()]
+        games = _load_jsonl(path)
         mean = sum(g["real_return"] for g in games) / len(games)
         outcomes = [g["outcome"] for g in games]
         counts = " / ".join(str(outcomes.count(o)) for o in ("won", "died", "time_limit", "aborted"))
@@ -320,12 +324,10 @@ def teaching_minibatch(base: str) -> list[str]:
     (benchmarks/human_effort.py, EMMA-LWM): real return, paired difference, wait and its parts."""
     import numpy as np
 
-    sys.path.insert(0, str(ROOT))
     from lwm_models.stats import mean_interval
 
     def records(name: str) -> dict:
-        rows = (json.loads(line) for line in (RESULTS / name).read_text().splitlines() if line.strip())
-        return {(r["model"], r["game"], r["budget"]): r for r in rows}
+        return {(r["model"], r["game"], r["budget"]): r for r in _load_jsonl(name)}
 
     old_path, new_path = "human_effort/records.jsonl", "human_effort/records-emma-minibatch-64.jsonl"
     old, new = records(old_path), records(new_path)
