@@ -166,6 +166,68 @@ def test_fine_tuning_starts_from_a_checkpoint_and_reads_longer_text(tiny_data, t
     assert dev[-1]["dev_selection"] == pytest.approx((dev[-1]["dev_total"] + dev[-1]["dev_mixed_total"]) / 2)
 
 
+def test_distillation_teaches_other_words_as_the_teacher_reads_the_dataset_s(tiny_data, tmp_path):
+    """--distill: against itself, with the dataset's own descriptions, the KL term is 0; with other
+    descriptions it is not, and training on it brings the model's reading of them towards the
+    teacher's reading of the dataset's (the term falls). --select imagined-reward keeps the
+    checkpoint with the best imagined reward precision on dev."""
+    from lwm_models.world.shipped import shipped_checkpoint
+    from lwm_models.world.train import distilled_loss
+
+    base = shipped_checkpoint("emma")  # a model that reads its manual (a barely trained one does not)
+    teacher, _ = load_checkpoint(base)
+    student, _ = load_checkpoint(base)
+    teacher.eval()
+    student.eval()
+    encoder = student.frozen_text_encoder()
+    data = SplitTokens(tiny_data, "train", encoder)
+    rng = np.random.default_rng(0)
+    own = [(t, n, m, m) for t, n, m, _ in data.sample_parts(rng, 8, 2, own_manuals=True)]
+    with torch.no_grad():
+        _, kl = distilled_loss(student, teacher, own)
+    assert float(kl) == pytest.approx(0.0, abs=1e-6)
+    from lwm_models.messenger.constants import ALL_TRIPLES
+
+    triples = [ALL_TRIPLES[i] for i in np.unique(np.asarray(data.ds.parses))]
+    data.mix_manuals({t: [f"watch the {t[0]} #{k}" for k in range(2)] for t in triples}, 1.0, encoder)
+    parts = data.sample_parts(rng, 8, 2, own_manuals=True)
+    with torch.no_grad():
+        _, before = distilled_loss(student, teacher, parts)
+    assert float(before) > 1e-4
+
+    run = tmp_path / "distilled"
+    train(
+        args(
+            tiny_data,
+            run,
+            kind="emma",
+            preset="small",
+            steps=16,
+            eval_every=8,
+            lr=1e-3,
+            init=str(base),
+            distill=str(base),
+            manual_mix=1.0,
+            mix_per_style=2,
+            select="imagined-reward",
+            select_episodes=4,
+        )
+    )
+    lines = [json.loads(line) for line in (run / "metrics.jsonl").read_text().splitlines()]
+    dev = [entry for entry in lines if "dev_total" in entry]
+    assert [d["step"] for d in dev] == [8, 16]
+    for d in dev:
+        assert 0 <= d["dev_reward_precision"] <= 1 and "dev_mixed_reward_precision" in d
+        assert d["dev_selection"] == pytest.approx(-(d["dev_reward_precision"] + d["dev_mixed_reward_precision"]) / 2)
+    best = min(dev, key=lambda d: d["dev_selection"])
+    assert load_checkpoint(run / "best")[1]["steps"] == best["step"]
+    tuned, _ = load_checkpoint(run / "last")
+    tuned.eval()
+    with torch.no_grad():
+        _, after = distilled_loss(tuned, teacher, parts)
+    assert float(after) < float(before)
+
+
 def test_resume_refuses_another_model(tiny_data, tmp_path):
     train(args(tiny_data, tmp_path / "run", steps=2, eval_every=2))
     with pytest.raises(Exception, match="observational"):

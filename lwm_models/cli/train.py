@@ -37,7 +37,7 @@ def _dataset_dir(text: str) -> str:
 def add_arguments(p: LwmParser) -> None:
     from ..messenger.constants import SPLITS
     from ..world.registry import KINDS, PRESETS
-    from ..world.train import TrainArgs
+    from ..world.train import SELECTIONS, TrainArgs
 
     checks = {
         "steps": positive_int,
@@ -58,11 +58,15 @@ def add_arguments(p: LwmParser) -> None:
         "mix_per_style": positive_int,
         "max_minutes": positive_float,
         "cpu_budget_minutes": positive_float,
+        "distill_weight": positive_float,
+        "select_episodes": positive_int,
     }
     extra = {name: {"type": check} for name, check in checks.items()}
     extra["data"] = {"type": _dataset_dir, "metavar": "DIR"}
     extra["out"] = {"metavar": "RUN"}
     extra["init"] = {"type": _dataset_dir, "metavar": "CHECKPOINT"}
+    extra["distill"] = {"type": _dataset_dir, "metavar": "CHECKPOINT"}
+    extra["select"] = {"choices": list(SELECTIONS)}
     extra["kind"] = {"choices": list(KINDS)}
     extra["preset"] = {"choices": list(PRESETS)}
     extra["eval_split"] = {"choices": list(SPLITS), "metavar": "SPLIT"}

@@ -225,6 +225,28 @@ class WorldModel(nn.Module):
         raise ValueError(f"position {next_position} holds an action: the model does not predict it")
 
     # ------------------------------------------------------------------ training
+    def predictions(
+        self, tokens: torch.Tensor, lengths: torch.Tensor, manual: ManualBatch
+    ) -> dict[str, tuple[torch.Tensor, torch.Tensor, torch.Tensor]]:
+        """Teacher-forced predictions of each kind of token ("obs", "reward", "done"): the logits
+        [B, P, V] (float32), the true next tokens [B, P] and which of them are real [B, P] (the first
+        block is context only; padding past `lengths` blocks is not)."""
+        n = tokens.shape[1]
+        if n % BLOCK or n > MAX_LEN:
+            raise ValueError(f"sequence length {n} must be a multiple of {BLOCK} and at most {MAX_LEN}")
+        h = self.hidden_states(tokens, self.condition(manual))
+        layout = _targets_layout(n)
+        valid_tokens = lengths.to(tokens.device)[:, None] * BLOCK  # target positions < this are real
+        out = {}
+        for name, kind, head_ in (
+            ("obs", SLOT_OBS, self.obs_head),
+            ("reward", SLOT_REWARD, self.reward_head),
+            ("done", SLOT_DONE, self.done_head),
+        ):
+            pos = torch.as_tensor(layout[kind], device=tokens.device)
+            out[name] = (head_(h[:, pos]).float(), tokens[:, pos + 1], (pos + 1)[None, :] < valid_tokens)
+        return out
+
     def forward(self, tokens: torch.Tensor, lengths: torch.Tensor, manual: ManualBatch) -> LossOutput:
         """Teacher-forced losses on a batch of token sequences.
 
@@ -232,25 +254,17 @@ class WorldModel(nn.Module):
         Returns the mean cross-entropy of observation, reward and done tokens (first block is
         context only, padding masked) and their total.
         """
-        b, n = tokens.shape
-        if n % BLOCK or n > MAX_LEN:
-            raise ValueError(f"sequence length {n} must be a multiple of {BLOCK} and at most {MAX_LEN}")
-        h = self.hidden_states(tokens, self.condition(manual))
-        layout = _targets_layout(n)
-        valid_tokens = lengths.to(tokens.device)[:, None] * BLOCK  # target positions < this are real
-        sums, counts, means = {}, {}, {}
-        for name, kind, head_ in (
-            ("obs", SLOT_OBS, self.obs_head),
-            ("reward", SLOT_REWARD, self.reward_head),
-            ("done", SLOT_DONE, self.done_head),
-        ):
-            pos = torch.as_tensor(layout[kind], device=tokens.device)
-            logits = head_(h[:, pos]).float()
-            target = tokens[:, pos + 1]
-            mask = (pos + 1)[None, :] < valid_tokens
-            ce = F.cross_entropy(logits.transpose(1, 2), target, reduction="none")
-            sums[name] = (ce * mask).sum()
-            counts[name] = mask.sum()
-            means[name] = sums[name] / counts[name].clamp(min=1)
-        total = means["obs"] + means["reward"] + means["done"]
-        return LossOutput(total, means["obs"], means["reward"], means["done"], sums, counts)
+        return losses(self.predictions(tokens, lengths, manual))
+
+
+def losses(predictions: dict[str, tuple[torch.Tensor, torch.Tensor, torch.Tensor]]) -> LossOutput:
+    """The cross-entropy of `WorldModel.predictions`: means over the real targets of each kind, and
+    their total."""
+    sums, counts, means = {}, {}, {}
+    for name, (logits, target, mask) in predictions.items():
+        ce = F.cross_entropy(logits.transpose(1, 2), target, reduction="none")
+        sums[name] = (ce * mask).sum()
+        counts[name] = mask.sum()
+        means[name] = sums[name] / counts[name].clamp(min=1)
+    total = means["obs"] + means["reward"] + means["done"]
+    return LossOutput(total, means["obs"], means["reward"], means["done"], sums, counts)

@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 import torch
 import torch.distributed as dist
+import torch.nn.functional as F
 from safetensors.torch import load_file, save_file
 from torch import nn
 
@@ -33,7 +34,7 @@ from ..errors import LwmError
 from ..messenger.constants import ALL_TRIPLES
 from ..text.free_form import training_texts
 from ..text.pools import DescriptionPools
-from .base import LossOutput, WorldModel
+from .base import LossOutput, WorldModel, losses
 from .checkpoint import load_checkpoint, publish, recover, save_checkpoint, write_checkpoint
 from .registry import PRESETS, build_model
 from .training_data import SplitTokens, redraw_manuals
@@ -99,6 +100,25 @@ class TrainArgs:
     mix_per_style: int = field(
         default=12, metadata={"help": "free-form descriptions per style and triple in the --manual-mix pool"}
     )
+    distill: str | None = field(
+        default=None,
+        metadata={
+            "help": "a teacher checkpoint (e.g. the one --init names): the loss adds the KL divergence from the "
+            "teacher's predictions, given each episode's own (dataset) descriptions, to this model's, given the "
+            "descriptions it is trained on (mixed in by --manual-mix): it learns to read other words as the "
+            "teacher reads the dataset's, and keeps the teacher's dynamics where the text does not matter"
+        },
+    )
+    distill_weight: float = field(default=1.0, metadata={"help": "weight of the --distill term in the loss"})
+    select: str = field(
+        default="loss",
+        metadata={
+            "help": "what chooses the best checkpoint: 'loss' (the dev loss) or 'imagined-reward' (the imagined "
+            "reward precision on the dev split, raw sampling, mean over the dataset's text and the --manual-mix "
+            "text): a fine-tune can lower the loss while its free-running imagination rewards in the wrong places"
+        },
+    )
+    select_episodes: int = field(default=300, metadata={"help": "dev episodes imagined for --select imagined-reward"})
     threads: int | None = field(default=None, metadata={"help": "torch threads (default: PyTorch's)"})
     tensorboard: bool = field(default=False, metadata={"help": "also write TensorBoard logs to RUN/tb"})
     progress: bool = field(default=True, metadata={"help": "show a progress bar"})
@@ -206,6 +226,44 @@ def _load_train_state(path: Path, optimizer: torch.optim.Optimizer, model: nn.Mo
     return state
 
 
+SELECTIONS = ("loss", "imagined-reward")
+
+
+def _imagined_precision(model: WorldModel, dev: SplitTokens, mixed: SplitTokens | None, args: TrainArgs) -> dict:
+    """Imagined reward and termination precision on the dev split (Table 2, raw sampling), and the
+    selection key they give: the negated mean reward precision, so that lower is better as for a loss."""
+    from .evaluate import imagination_metrics
+
+    out, precisions = {}, []
+    for name, data in (("", dev), ("mixed_", mixed)):
+        if data is None:
+            continue
+        m = imagination_metrics(model, data, args.select_episodes, seed=args.seed)
+        out[f"{name}reward_precision"] = m.reward_precision
+        out[f"{name}termination_precision"] = m.termination_precision
+        precisions.append(m.reward_precision)
+    out["selection"] = -float(np.mean(precisions))
+    return out
+
+
+def distilled_loss(model: WorldModel, teacher: WorldModel, parts: list[tuple]) -> tuple[LossOutput, torch.Tensor]:
+    """The batch's cross-entropy, and KL(teacher given the episodes' own descriptions || model given
+    the trained-on ones) from the same forward pass: per token kind a mean over the batch's real
+    target tokens, summed over the kinds as the loss is."""
+    outs, sums, counts = [], {}, {}
+    for tokens, lengths, manual, own in parts:
+        with torch.no_grad():
+            wanted = teacher.predictions(tokens, lengths, own)
+        mine = model.predictions(tokens, lengths, manual)
+        outs.append(losses(mine))
+        for name, (logits, _, mask) in mine.items():
+            target = F.log_softmax(wanted[name][0], dim=-1)
+            kl = (target.exp() * (target - F.log_softmax(logits, dim=-1))).sum(-1)
+            sums[name] = sums.get(name, 0) + (kl * mask).sum()
+            counts[name] = counts.get(name, 0) + mask.sum()
+    return batch_loss(outs), sum(sums[k] / counts[k].clamp(min=1) for k in sums)
+
+
 def batch_loss(outs: list[LossOutput]) -> LossOutput:
     """The loss of a batch computed in parts: each of obs, reward and done is its summed
     cross-entropy over all parts divided by its token count over all parts, as if the batch had
@@ -253,6 +311,10 @@ def train(args: TrainArgs, log=print) -> dict:
         torch.set_num_threads(args.threads)
     if args.preset not in PRESETS:
         raise LwmError(f"unknown preset {args.preset!r}; known: {', '.join(PRESETS)}")
+    if args.distill and distributed:
+        raise LwmError("--distill is not supported under torchrun (its term bypasses DistributedDataParallel)")
+    if args.select not in SELECTIONS:
+        raise LwmError(f"unknown --select {args.select!r}; known: {', '.join(SELECTIONS)}")
     out = Path(args.out)
     last, best_dir = out / "last", out / "best"
 
@@ -286,6 +348,10 @@ def train(args: TrainArgs, log=print) -> dict:
             dev_mixed = SplitTokens(args.data, args.eval_split, encoder, router)
             redraw_manuals(dev_mixed, _mix_pools(dev_mixed, args), encoder, seed=args.seed)
 
+    teacher = None
+    if args.distill:
+        teacher, _ = load_checkpoint(args.distill, kind=args.kind)
+        teacher.eval().requires_grad_(False)
     optimizer = torch.optim.AdamW(_param_groups(model, args.weight_decay), lr=args.lr, betas=(0.9, 0.999))
     rng = np.random.default_rng([args.seed, rank])
     step, best = 0, float("inf")
@@ -376,11 +442,15 @@ def train(args: TrainArgs, log=print) -> dict:
         for g in optimizer.param_groups:
             g["lr"] = lr
         # DistributedDataParallel expects one forward per backward: one part there.
-        parts = train_data.sample_parts(rng, args.batch, 1 if distributed else args.parts)
+        parts = train_data.sample_parts(rng, args.batch, 1 if distributed else args.parts, own_manuals=bool(teacher))
         with torch.autocast("cpu", dtype=torch.bfloat16, enabled=args.bf16):
-            out_ = batch_loss([net(tokens, lengths, manual) for tokens, lengths, manual in parts])
+            if teacher is None:
+                out_, kl = batch_loss([net(*part) for part in parts]), None
+            else:
+                out_, kl = distilled_loss(model, teacher, parts)
+        loss = out_.loss if kl is None else out_.loss + args.distill_weight * kl
         optimizer.zero_grad(set_to_none=True)
-        out_.loss.backward()
+        loss.backward()
         grad_norm = float(nn.utils.clip_grad_norm_(model.parameters(), args.clip))
         optimizer.step()
         step += 1
@@ -397,6 +467,7 @@ def train(args: TrainArgs, log=print) -> dict:
                     "obs": out_.obs.item(),
                     "reward": out_.reward.item(),
                     "done": out_.done.item(),
+                    **({"distill_kl": kl.item()} if kl is not None else {}),
                     "lr": lr,
                     "grad_norm": grad_norm,
                     "elapsed_s": round(now["wall_s"], 1),
@@ -418,6 +489,9 @@ def train(args: TrainArgs, log=print) -> dict:
                     mixed = evaluate_loss(model, dev_mixed, limit=args.eval_episodes, bf16=args.bf16)
                     dev["mixed_total"] = mixed["total"]
                     dev["selection"] = (dev["total"] + mixed["total"]) / 2
+                if args.select == "imagined-reward":
+                    dev.update(_imagined_precision(model, dev_data, dev_mixed, args))
+                    model.train()
                 record(
                     {
                         "step": step,

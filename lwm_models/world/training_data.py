@@ -152,20 +152,21 @@ class SplitTokens:
         tokens, lengths = self.segments(episodes, starts)
         return tokens, lengths, self.manual_batch(episodes, self._mixed_text_ids(rng, episodes))
 
-    def sample_parts(
-        self, rng: np.random.Generator, batch: int, parts: int
-    ) -> list[tuple[torch.Tensor, torch.Tensor, ManualBatch]]:
+    def sample_parts(self, rng: np.random.Generator, batch: int, parts: int, own_manuals: bool = False) -> list[tuple]:
         """The segments `sample` draws (the same random numbers), sorted by length and split into
         `parts` groups, each padded only to its own longest segment. Segments run from a random
         step to the episode's end, so one batch padded to its longest is about two thirds padding
-        (measured on the training split: 36% of the padded blocks are real; 75% in 4 parts)."""
+        (measured on the training split: 36% of the padded blocks are real; 75% in 4 parts).
+        Each part is (tokens, lengths, manual), and with `own_manuals` also the episodes' own
+        manuals (their dataset descriptions, where `manual` may hold mixed-in ones)."""
         episodes, starts = self._draw(rng, batch)
         text_ids = self._mixed_text_ids(rng, episodes)
         order = np.argsort(self.lengths[episodes] - starts, kind="stable")
         out = []
         for part in np.array_split(order, min(parts, batch)):
             tokens, lengths = self.segments(episodes[part], starts[part])
-            out.append((tokens, lengths, self.manual_batch(episodes[part], text_ids[part])))
+            part_ = (tokens, lengths, self.manual_batch(episodes[part], text_ids[part]))
+            out.append((*part_, self.manual_batch(episodes[part])) if own_manuals else part_)
         return out
 
     def evaluated_episodes(self, limit: int | None = None) -> np.ndarray:
