@@ -294,6 +294,52 @@ def load(base: str) -> list[str]:
     return lines
 
 
+def _span(values: list[float], fmt: str = ".2f") -> str:
+    """'lo-hi' of measured values (one figure when they agree at that precision)."""
+    lo, hi = format(min(values), fmt), format(max(values), fmt)
+    return lo if lo == hi else f"{lo}-{hi}"
+
+
+def speed(base: str) -> list[str]:
+    """The speed goals (docs/speed.md), each as the ratio of the fast path to its baseline measured in one run,
+    with the arithmetic floor beside it (results/speed/)."""
+    runs = [_load(f"speed/imagination-run{i}.json") for i in (1, 2, 3)]
+    lines = [
+        "| what | baseline | now (default path) | ratio, each run | goal | floor (arithmetic) |",
+        "|---|---|---|---|---|---|",
+    ]
+    goals = {1: 5.0, 16: 2.0, 64: 2.0}
+    for i, row in enumerate(runs[0]["rows"]):
+        batch = row["batch"]
+        rows = [r["rows"][i] for r in runs]
+        ratios = ", ".join(f"{r['ratio_to_reference']['speculative']:.2f}x" for r in rows)
+        ref = _span([r["seconds"]["reference"] for r in rows])
+        now = _span([r["seconds"]["speculative"] for r in rows])
+        floor = min(r["floor_seconds"] for r in rows)
+        lines.append(
+            f"| imagining {batch} {'trajectory' if batch == 1 else 'trajectories'} of 32 steps "
+            f"({_link('speed/imagination-run1.json', base)}, runs 1-3) "
+            f"| {ref} s | {now} s | {ratios} | >= {goals[batch]:.0f}x | {floor:.4f} s |"
+        )
+    policy = _load("speed/policy-step.json")
+    dense = policy["rows"][0]
+    for row in policy["rows"][1:]:
+        lines.append(
+            f"| a policy training step, minibatch {row['batch']} ({_link('speed/policy-step.json', base)}) "
+            f"| {dense['ms']:.1f} ms (dense, {dense['batch']}) | {row['ms']:.1f} ms | {row['ratio']:.1f}x | >= 2x "
+            f"| {row['floor_ms']:.1f} ms |"
+        )
+    many = re.compile(r"^8 clients: .*?([\d.]+) calls/s, .*p99 (\d+) ms")
+    found = [m for line in (RESULTS / "speed/ros-stress-load.log").read_text().splitlines() if (m := many.match(line))]
+    (ref_calls, ref_p99), (now_calls, now_p99) = [(float(m.group(1)), int(m.group(2))) for m in found[:2]]
+    lines.append(
+        f"| the world-model server, 8 clients ({_link('speed/ros-stress-load.log', base)}) "
+        f"| {ref_calls:.1f} calls/s, p99 {ref_p99} ms | {now_calls:.1f} calls/s, p99 {now_p99} ms "
+        f"| {now_calls / ref_calls:.2f}x | >= 2x, p99 < 200 ms | - |"
+    )
+    return lines
+
+
 def effort(base: str) -> list[str]:
     """Real return against the labels a person was asked for (benchmarks/human_effort.py)."""
     path = "human_effort/summary.json"
@@ -470,6 +516,7 @@ TABLES: dict[str, Callable[[str], list[str]]] = {
     "parser": parser,
     "pilot": pilot,
     "load": load,
+    "speed": speed,
 }
 BLOCK = re.compile(r"(<!-- table:([\w-]+) -->\n)(.*?)(<!-- /table:\2 -->)", re.S)
 

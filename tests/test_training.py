@@ -166,13 +166,51 @@ def test_fine_tuning_starts_from_a_checkpoint_and_reads_longer_text(tiny_data, t
     assert dev[-1]["dev_selection"] == pytest.approx((dev[-1]["dev_total"] + dev[-1]["dev_mixed_total"]) / 2)
 
 
+def test_event_weighting_counts_the_steps_where_something_happens(tiny_data):
+    """--event-weight: steps with a reward or the end are found from the tokens; weight 1 is the
+    plain loss; a huge weight leaves only those steps' tokens in the loss."""
+    import torch.nn.functional as F
+
+    from lwm_models.world.base import event_steps, target_blocks
+    from lwm_models.world.registry import PRESETS, build_model
+    from lwm_models.world.train import batch_loss, weighted_objective
+
+    torch.manual_seed(0)
+    model = build_model("observational", PRESETS["tiny"]).eval()
+    data = SplitTokens(tiny_data, "train")
+    parts = data.sample_parts(np.random.default_rng(0), 16, 2)
+    events = [event_steps(tokens) for tokens, _, _ in parts]
+    for (tokens, lengths, _), ev in zip(parts, events):
+        blocks = tokens.view(len(tokens), -1, 15)
+        real = torch.arange(blocks.shape[1])[None, :] < lengths[:, None]
+        # the dataset's rewards and dones, block by block, against what event_steps found
+        rewarded = (blocks[:, :, 13] != FIRST_REWARD_LABEL) | (blocks[:, :, 14] == 1)
+        assert torch.equal(ev & real, rewarded & real)
+    assert sum(int(ev.sum()) for ev in events) > 0
+    with torch.no_grad():
+        plain, loss, kl = weighted_objective(model, None, parts, 1.0, 1.0)
+        assert kl is None and float(loss) == pytest.approx(float(batch_loss([model(*p) for p in parts]).loss), rel=1e-5)
+        _, heavy, _ = weighted_objective(model, None, parts, 1e9, 1.0)
+        only_events = 0.0
+        for name in ("obs", "reward", "done"):
+            total = count = 0.0
+            for (tokens, lengths, manual), ev in zip(parts, events):
+                logits, target, mask = model.predictions(tokens, lengths, manual)[name]
+                keep = mask & ev[:, target_blocks(tokens.shape[1])[name]]
+                ce = F.cross_entropy(logits.transpose(1, 2), target, reduction="none")
+                total, count = total + float((ce * keep).sum()), count + float(keep.sum())
+            only_events += total / count
+        assert float(heavy) == pytest.approx(only_events, rel=1e-4)
+    assert float(plain.loss) == pytest.approx(float(loss), rel=1e-5)
+
+
 def test_distillation_teaches_other_words_as_the_teacher_reads_the_dataset_s(tiny_data, tmp_path):
     """--distill: against itself, with the dataset's own descriptions, the KL term is 0; with other
     descriptions it is not, and training on it brings the model's reading of them towards the
     teacher's reading of the dataset's (the term falls). --select imagined-reward keeps the
     checkpoint with the best imagined reward precision on dev."""
     from lwm_models.world.shipped import shipped_checkpoint
-    from lwm_models.world.train import distilled_loss
+    from lwm_models.world.train import weighted_objective
 
     base = shipped_checkpoint("emma")  # a model that reads its manual (a barely trained one does not)
     teacher, _ = load_checkpoint(base)
@@ -184,7 +222,7 @@ def test_distillation_teaches_other_words_as_the_teacher_reads_the_dataset_s(tin
     rng = np.random.default_rng(0)
     own = [(t, n, m, m) for t, n, m, _ in data.sample_parts(rng, 8, 2, own_manuals=True)]
     with torch.no_grad():
-        _, kl = distilled_loss(student, teacher, own)
+        _, _, kl = weighted_objective(student, teacher, own, 1.0, 1.0)
     assert float(kl) == pytest.approx(0.0, abs=1e-6)
     from lwm_models.messenger.constants import ALL_TRIPLES
 
@@ -192,7 +230,7 @@ def test_distillation_teaches_other_words_as_the_teacher_reads_the_dataset_s(tin
     data.mix_manuals({t: [f"watch the {t[0]} #{k}" for k in range(2)] for t in triples}, 1.0, encoder)
     parts = data.sample_parts(rng, 8, 2, own_manuals=True)
     with torch.no_grad():
-        _, before = distilled_loss(student, teacher, parts)
+        _, _, before = weighted_objective(student, teacher, parts, 1.0, 1.0)
     assert float(before) > 1e-4
 
     run = tmp_path / "distilled"
@@ -224,7 +262,7 @@ def test_distillation_teaches_other_words_as_the_teacher_reads_the_dataset_s(tin
     tuned, _ = load_checkpoint(run / "last")
     tuned.eval()
     with torch.no_grad():
-        _, after = distilled_loss(tuned, teacher, parts)
+        _, _, after = weighted_objective(tuned, teacher, parts, 1.0, 1.0)
     assert float(after) < float(before)
 
 

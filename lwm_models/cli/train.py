@@ -59,6 +59,7 @@ def add_arguments(p: LwmParser) -> None:
         "max_minutes": positive_float,
         "cpu_budget_minutes": positive_float,
         "distill_weight": positive_float,
+        "event_weight": positive_float,
         "select_episodes": positive_int,
     }
     extra = {name: {"type": check} for name, check in checks.items()}

@@ -30,6 +30,7 @@ from .tokens import (
     ACTION_VOCAB,
     BLOCK,
     DONE_VOCAB,
+    FIRST_REWARD_LABEL,
     ID_SLOTS,
     MAX_BLOCKS,
     OBS_VOCAB,
@@ -103,6 +104,21 @@ def _targets_layout(length: int) -> dict[int, np.ndarray]:
     nxt = np.arange(BLOCK, length)
     kind = SLOT_KIND[nxt % BLOCK]
     return {k: nxt[kind == k] - 1 for k in (SLOT_OBS, SLOT_REWARD, SLOT_DONE)}
+
+
+def event_steps(tokens: torch.Tensor) -> torch.Tensor:
+    """Which blocks of token sequences [B, L] are steps where something happens [B, L / 15]: a
+    reward other than 0, or the end. What the manual says decides only these (a contact's outcome
+    follows from the entity's role), and they are about one step in fifteen."""
+    blocks = tokens.view(len(tokens), -1, BLOCK)
+    return (blocks[:, :, BLOCK - 2] != FIRST_REWARD_LABEL) | (blocks[:, :, BLOCK - 1] == 1)
+
+
+def target_blocks(length: int) -> dict[str, torch.Tensor]:
+    """The block of each target token of `WorldModel.predictions` on sequences of `length` tokens."""
+    layout = _targets_layout(length)
+    kinds = {"obs": SLOT_OBS, "reward": SLOT_REWARD, "done": SLOT_DONE}
+    return {name: torch.as_tensor((layout[kind] + 1) // BLOCK) for name, kind in kinds.items()}
 
 
 class WorldModel(nn.Module):

@@ -34,7 +34,7 @@ from ..errors import LwmError
 from ..messenger.constants import ALL_TRIPLES
 from ..text.free_form import training_texts
 from ..text.pools import DescriptionPools
-from .base import LossOutput, WorldModel, losses
+from .base import LossOutput, WorldModel, event_steps, losses, target_blocks
 from .checkpoint import load_checkpoint, publish, recover, save_checkpoint, write_checkpoint
 from .registry import PRESETS, build_model
 from .training_data import SplitTokens, redraw_manuals
@@ -110,6 +110,13 @@ class TrainArgs:
         },
     )
     distill_weight: float = field(default=1.0, metadata={"help": "weight of the --distill term in the loss"})
+    event_weight: float = field(
+        default=1.0,
+        metadata={
+            "help": "weight of the target tokens of steps with a reward or the end, against 1 for the others: the "
+            "manual's roles decide only those steps, about one in fifteen, so the mean loss barely sees them"
+        },
+    )
     select: str = field(
         default="loss",
         metadata={
@@ -189,7 +196,7 @@ def _mix_texts(data: SplitTokens, args: TrainArgs) -> dict:
     return training_texts(_split_triples(data), per_style=args.mix_per_style, seed=args.seed)
 
 
-def _mix_pools(data: SplitTokens, args: TrainArgs) -> DescriptionPools:
+def mix_pools(data: SplitTokens, args: TrainArgs) -> DescriptionPools:
     """The dev split's manuals re-drawn from the training mix's kind of text (for its own triples)."""
     texts = _mix_texts(data, args)
     return DescriptionPools({data.split: {t: tuple(v) for t, v in texts.items()}}, "manual-mix")
@@ -229,7 +236,7 @@ def _load_train_state(path: Path, optimizer: torch.optim.Optimizer, model: nn.Mo
 SELECTIONS = ("loss", "imagined-reward")
 
 
-def _imagined_precision(model: WorldModel, dev: SplitTokens, mixed: SplitTokens | None, args: TrainArgs) -> dict:
+def imagined_precision(model: WorldModel, dev: SplitTokens, mixed: SplitTokens | None, args: TrainArgs) -> dict:
     """Imagined reward and termination precision on the dev split (Table 2, raw sampling), and the
     selection key they give: the negated mean reward precision, so that lower is better as for a loss."""
     from .evaluate import imagination_metrics
@@ -246,22 +253,43 @@ def _imagined_precision(model: WorldModel, dev: SplitTokens, mixed: SplitTokens 
     return out
 
 
-def distilled_loss(model: WorldModel, teacher: WorldModel, parts: list[tuple]) -> tuple[LossOutput, torch.Tensor]:
-    """The batch's cross-entropy, and KL(teacher given the episodes' own descriptions || model given
-    the trained-on ones) from the same forward pass: per token kind a mean over the batch's real
-    target tokens, summed over the kinds as the loss is."""
-    outs, sums, counts = [], {}, {}
-    for tokens, lengths, manual, own in parts:
-        with torch.no_grad():
-            wanted = teacher.predictions(tokens, lengths, own)
+def weighted_objective(
+    model: WorldModel, teacher: WorldModel | None, parts: list[tuple], event_weight: float, distill_weight: float
+) -> tuple[LossOutput, torch.Tensor, torch.Tensor | None]:
+    """The batch's plain cross-entropy (for the log), the loss to minimise and the distillation term.
+
+    Every target token of a step where something happens (`event_steps`) weighs `event_weight`,
+    the others 1, in weighted means per token kind. With a teacher, each token also adds
+    `distill_weight` x KL(teacher given the episode's own descriptions || model given the
+    trained-on ones) in the same weighted means. Parts are (tokens, lengths, manual[, own manual])."""
+    outs = []
+    sums: dict[str, torch.Tensor] = {}
+    norms: dict[str, torch.Tensor] = {}
+    kl_sums: dict[str, torch.Tensor] = {}
+    for part in parts:
+        tokens, lengths, manual = part[:3]
         mine = model.predictions(tokens, lengths, manual)
         outs.append(losses(mine))
-        for name, (logits, _, mask) in mine.items():
-            target = F.log_softmax(wanted[name][0], dim=-1)
-            kl = (target.exp() * (target - F.log_softmax(logits, dim=-1))).sum(-1)
-            sums[name] = sums.get(name, 0) + (kl * mask).sum()
-            counts[name] = counts.get(name, 0) + mask.sum()
-    return batch_loss(outs), sum(sums[k] / counts[k].clamp(min=1) for k in sums)
+        wanted = None
+        if teacher is not None:
+            with torch.no_grad():
+                wanted = teacher.predictions(tokens, lengths, part[3])
+        events = event_steps(tokens)
+        for name, block in target_blocks(tokens.shape[1]).items():
+            logits, target, mask = mine[name]
+            weight = torch.where(events[:, block], event_weight, 1.0) * mask
+            ce = F.cross_entropy(logits.transpose(1, 2), target, reduction="none")
+            sums[name] = sums.get(name, 0) + (ce * weight).sum()
+            norms[name] = norms.get(name, 0) + weight.sum()
+            if wanted is not None:
+                target_logp = F.log_softmax(wanted[name][0], dim=-1)
+                kl = (target_logp.exp() * (target_logp - F.log_softmax(logits, dim=-1))).sum(-1)
+                kl_sums[name] = kl_sums.get(name, 0) + (kl * weight).sum()
+    loss = sum(sums[k] / norms[k].clamp(min=1) for k in sums)
+    kl_term = sum(kl_sums[k] / norms[k].clamp(min=1) for k in kl_sums) if kl_sums else None
+    if kl_term is not None:
+        loss = loss + distill_weight * kl_term
+    return batch_loss(outs), loss, kl_term
 
 
 def batch_loss(outs: list[LossOutput]) -> LossOutput:
@@ -311,8 +339,8 @@ def train(args: TrainArgs, log=print) -> dict:
         torch.set_num_threads(args.threads)
     if args.preset not in PRESETS:
         raise LwmError(f"unknown preset {args.preset!r}; known: {', '.join(PRESETS)}")
-    if args.distill and distributed:
-        raise LwmError("--distill is not supported under torchrun (its term bypasses DistributedDataParallel)")
+    if (args.distill or args.event_weight != 1.0) and distributed:
+        raise LwmError("--distill and --event-weight are not supported under torchrun (they bypass DDP's forward)")
     if args.select not in SELECTIONS:
         raise LwmError(f"unknown --select {args.select!r}; known: {', '.join(SELECTIONS)}")
     out = Path(args.out)
@@ -346,7 +374,7 @@ def train(args: TrainArgs, log=print) -> dict:
         train_data.mix_manuals(_mix_texts(train_data, args), args.manual_mix, encoder)
         if rank == 0:
             dev_mixed = SplitTokens(args.data, args.eval_split, encoder, router)
-            redraw_manuals(dev_mixed, _mix_pools(dev_mixed, args), encoder, seed=args.seed)
+            redraw_manuals(dev_mixed, mix_pools(dev_mixed, args), encoder, seed=args.seed)
 
     teacher = None
     if args.distill:
@@ -444,11 +472,11 @@ def train(args: TrainArgs, log=print) -> dict:
         # DistributedDataParallel expects one forward per backward: one part there.
         parts = train_data.sample_parts(rng, args.batch, 1 if distributed else args.parts, own_manuals=bool(teacher))
         with torch.autocast("cpu", dtype=torch.bfloat16, enabled=args.bf16):
-            if teacher is None:
+            if teacher is None and args.event_weight == 1.0:
                 out_, kl = batch_loss([net(*part) for part in parts]), None
+                loss = out_.loss
             else:
-                out_, kl = distilled_loss(model, teacher, parts)
-        loss = out_.loss if kl is None else out_.loss + args.distill_weight * kl
+                out_, loss, kl = weighted_objective(model, teacher, parts, args.event_weight, args.distill_weight)
         optimizer.zero_grad(set_to_none=True)
         loss.backward()
         grad_norm = float(nn.utils.clip_grad_norm_(model.parameters(), args.clip))
@@ -490,7 +518,7 @@ def train(args: TrainArgs, log=print) -> dict:
                     dev["mixed_total"] = mixed["total"]
                     dev["selection"] = (dev["total"] + mixed["total"]) / 2
                 if args.select == "imagined-reward":
-                    dev.update(_imagined_precision(model, dev_data, dev_mixed, args))
+                    dev.update(imagined_precision(model, dev_data, dev_mixed, args))
                     model.train()
                 record(
                     {
