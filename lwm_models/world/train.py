@@ -248,6 +248,9 @@ def imagined_precision(model: WorldModel, dev: SplitTokens, mixed: SplitTokens |
         m = imagination_metrics(model, data, args.select_episodes, seed=args.seed)
         out[f"{name}reward_precision"] = m.reward_precision
         out[f"{name}termination_precision"] = m.termination_precision
+        # what tells a model that rewards too often from one whose entities drift (docs/language.md)
+        out[f"{name}reward_recall"] = m.reward_recall
+        out[f"{name}delta_dist"] = m.delta_dist
         precisions.append(m.reward_precision)
     out["selection"] = -float(np.mean(precisions))
     return out
