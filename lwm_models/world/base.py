@@ -108,8 +108,8 @@ def _targets_layout(length: int) -> dict[int, np.ndarray]:
 
 def event_steps(tokens: torch.Tensor) -> torch.Tensor:
     """Which blocks of token sequences [B, L] are steps where something happens [B, L / 15]: a
-    reward other than 0, or the end. What the manual says decides only these (a contact's outcome
-    follows from the entity's role), and they are about one step in fifteen."""
+    reward other than 0, or the end. A contact's outcome follows from the role the manual gives the
+    entity, and such steps are about one in fifteen, so the mean loss weighs them little."""
     blocks = tokens.view(len(tokens), -1, BLOCK)
     return (blocks[:, :, BLOCK - 2] != FIRST_REWARD_LABEL) | (blocks[:, :, BLOCK - 1] == 1)
 

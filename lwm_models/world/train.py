@@ -113,8 +113,8 @@ class TrainArgs:
     event_weight: float = field(
         default=1.0,
         metadata={
-            "help": "weight of the target tokens of steps with a reward or the end, against 1 for the others: the "
-            "manual's roles decide only those steps, about one in fifteen, so the mean loss barely sees them"
+            "help": "weight of the target tokens of steps with a reward or the end, against 1 for the others: a "
+            "contact's outcome follows from the manual's roles, and such steps are about one in fifteen"
         },
     )
     select: str = field(
