@@ -123,3 +123,11 @@ def test_the_training_mix_writes_from_the_tuning_bank_only():
         assert not set(free) & heldout
     # the free-form part names the triple's own identity and never the other entity's
     assert all("queen" not in t for t in texts[("dog", "chaser", "enemy")])
+    # --mix-source: one of the two parts alone
+    generated = training_texts(triples, per_style=5, seed=3, source="generated")
+    free_form = training_texts(triples, per_style=5, seed=3, source="free-form")
+    for triple in triples:
+        assert set(generated[triple]) == set(generate_descriptions(triple))
+        assert set(free_form[triple]) == set(texts[triple]) - set(generate_descriptions(triple))
+    with pytest.raises(ValueError, match="unknown mix source"):
+        training_texts(triples, source="books")

@@ -36,6 +36,7 @@ def _dataset_dir(text: str) -> str:
 
 def add_arguments(p: LwmParser) -> None:
     from ..messenger.constants import SPLITS
+    from ..text.free_form import MIX_SOURCES
     from ..world.registry import KINDS, PRESETS
     from ..world.train import SELECTIONS, TrainArgs
 
@@ -68,6 +69,7 @@ def add_arguments(p: LwmParser) -> None:
     extra["init"] = {"type": _dataset_dir, "metavar": "CHECKPOINT"}
     extra["distill"] = {"type": _dataset_dir, "metavar": "CHECKPOINT"}
     extra["select"] = {"choices": list(SELECTIONS)}
+    extra["mix_source"] = {"choices": list(MIX_SOURCES)}
     extra["kind"] = {"choices": list(KINDS)}
     extra["preset"] = {"choices": list(PRESETS)}
     extra["eval_split"] = {"choices": list(SPLITS), "metavar": "SPLIT"}

@@ -273,14 +273,22 @@ def describe(part: str, style: str, triple: tuple[str, str, str], rng: np.random
     return text
 
 
-def training_texts(triples: Iterable[Triple], per_style: int = 12, seed: int = 0) -> dict[Triple, list[str]]:
+MIX_SOURCES = ("both", "generated", "free-form")
+
+
+def training_texts(
+    triples: Iterable[Triple], per_style: int = 12, seed: int = 0, source: str = "both"
+) -> dict[Triple, list[str]]:
     """Descriptions of `triples` for a training mix: the generator's, and up to `per_style`
-    distinct "tune"-bank descriptions in each style. Never the held-out bank."""
+    distinct "tune"-bank descriptions in each style (`source`: both, or one of the two). Never the
+    held-out bank."""
+    if source not in MIX_SOURCES:
+        raise ValueError(f"unknown mix source {source!r}; known: {', '.join(MIX_SOURCES)}")
     rng = np.random.default_rng([seed, 0x545255])
     out: dict[Triple, list[str]] = {}
     for triple in triples:
-        texts = dict.fromkeys(generate_descriptions(triple))
-        for style in STYLES:
+        texts = dict.fromkeys(generate_descriptions(triple) if source != "free-form" else ())
+        for style in STYLES if source != "generated" else ():
             made: set[str] = set()
             for _attempt in range(4 * per_style):
                 if len(made) >= per_style:

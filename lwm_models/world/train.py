@@ -97,6 +97,10 @@ class TrainArgs:
             "is then chosen on the mean of the dev loss with the dataset's text and with such text"
         },
     )
+    mix_source: str = field(
+        default="both",
+        metadata={"help": "what --manual-mix draws from: both, generated (the generator's) or free-form (tuning bank)"},
+    )
     mix_per_style: int = field(
         default=12, metadata={"help": "free-form descriptions per style and triple in the --manual-mix pool"}
     )
@@ -193,7 +197,7 @@ def _split_triples(data: SplitTokens) -> list:
 
 
 def _mix_texts(data: SplitTokens, args: TrainArgs) -> dict:
-    return training_texts(_split_triples(data), per_style=args.mix_per_style, seed=args.seed)
+    return training_texts(_split_triples(data), per_style=args.mix_per_style, seed=args.seed, source=args.mix_source)
 
 
 def mix_pools(data: SplitTokens, args: TrainArgs) -> DescriptionPools:
