@@ -126,7 +126,7 @@ class TrainArgs:
         metadata={
             "help": "what chooses the best checkpoint: 'loss' (the dev loss) or 'imagined-reward' (the imagined "
             "reward precision on the dev split, raw sampling, mean over the dataset's text and the --manual-mix "
-            "text): a fine-tune can lower the loss while its free-running imagination rewards in the wrong places"
+            "text): a model can lower its loss while its imagination rewards in the wrong places"
         },
     )
     select_episodes: int = field(default=300, metadata={"help": "dev episodes imagined for --select imagined-reward"})
