@@ -1,7 +1,8 @@
 """The figure `lwm train --select imagined-reward` chooses checkpoints by, for any checkpoint: imagined
 reward and termination precision (Table 2, raw sampling) on the dev split, with the dataset's
-descriptions and with the dev manuals re-drawn from the --manual-mix pool. Used to put a shipped
-model beside a fine-tune's evaluations in its metrics.jsonl.
+descriptions and with the dev manuals re-drawn from the --manual-mix pool, and the dev
+cross-entropy with each. Used to put a shipped model beside a fine-tune's evaluations in its
+metrics.jsonl.
 
     .venv/bin/python benchmarks/imagined_rewards.py --data data/human --checkpoints DIR [DIR ...]
 """
@@ -14,7 +15,7 @@ import json
 import torch
 
 from lwm_models.world.checkpoint import load_checkpoint
-from lwm_models.world.train import TrainArgs, imagined_precision, mix_pools
+from lwm_models.world.train import TrainArgs, evaluate_loss, imagined_precision, mix_pools
 from lwm_models.world.training_data import SplitTokens, redraw_manuals
 
 
@@ -25,7 +26,9 @@ def main() -> None:
     parser.add_argument("--split", default="newall-dev")
     parser.add_argument("--episodes", type=int, default=300, help="dev episodes imagined (as --select-episodes)")
     parser.add_argument("--mix-per-style", type=int, default=12, help="as lwm train --mix-per-style")
+    parser.add_argument("--mix-source", default="both", help="as lwm train --mix-source")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--loss-episodes", type=int, default=1000, help="dev episodes of the cross-entropy")
     parser.add_argument("--threads", type=int, default=1)
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
@@ -37,6 +40,7 @@ def main() -> None:
             eval_split=args.split,
             manual_mix=1.0,  # only the pool's content matters here, not the rate
             mix_per_style=args.mix_per_style,
+            mix_source=args.mix_source,
             select="imagined-reward",
             select_episodes=args.episodes,
             seed=args.seed,
@@ -46,7 +50,11 @@ def main() -> None:
         mixed = SplitTokens(args.data, args.split, encoder, model.route)
         redraw_manuals(mixed, mix_pools(mixed, train_args), encoder, seed=args.seed)
         figures = imagined_precision(model, dev, mixed, train_args)
-        run = {"checkpoint": path, "split": args.split, "episodes": args.episodes, "seed": args.seed}
+        # the cross-entropy lwm train's dev evaluation records beside them (its --eval-episodes 1000)
+        figures["dev_total"] = evaluate_loss(model, dev, limit=args.loss_episodes)["total"]
+        figures["dev_mixed_total"] = evaluate_loss(model, mixed, limit=args.loss_episodes)["total"]
+        run = {"checkpoint": path, "split": args.split, "episodes": args.episodes, "seed": args.seed,
+               "mix_source": args.mix_source}  # fmt: skip
         print(json.dumps({**run, **figures}))
 
 
