@@ -41,15 +41,13 @@ def main() -> None:
             manual_mix=1.0,  # only the pool's content matters here, not the rate
             mix_per_style=args.mix_per_style,
             mix_source=args.mix_source,
-            select="imagined-reward",
-            select_episodes=args.episodes,
             seed=args.seed,
-        )
+        )  # what mix_pools reads of a training run's arguments
         encoder = model.frozen_text_encoder()
         dev = SplitTokens(args.data, args.split, encoder, model.route)
         mixed = SplitTokens(args.data, args.split, encoder, model.route)
         redraw_manuals(mixed, mix_pools(mixed, train_args), encoder, seed=args.seed)
-        figures = imagined_precision(model, dev, mixed, train_args)
+        figures = imagined_precision(model, dev, mixed, args.episodes, args.seed)
         # the cross-entropy lwm train's dev evaluation records beside them (its --eval-episodes 1000)
         figures["dev_total"] = evaluate_loss(model, dev, limit=args.loss_episodes)["total"]
         figures["dev_mixed_total"] = evaluate_loss(model, mixed, limit=args.loss_episodes)["total"]

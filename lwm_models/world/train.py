@@ -240,7 +240,9 @@ def _load_train_state(path: Path, optimizer: torch.optim.Optimizer, model: nn.Mo
 SELECTIONS = ("loss", "imagined-reward")
 
 
-def imagined_precision(model: WorldModel, dev: SplitTokens, mixed: SplitTokens | None, args: TrainArgs) -> dict:
+def imagined_precision(
+    model: WorldModel, dev: SplitTokens, mixed: SplitTokens | None, episodes: int, seed: int = 0
+) -> dict:
     """Imagined reward and termination precision on the dev split (Table 2, raw sampling), and the
     selection key they give: the negated mean reward precision, so that lower is better as for a loss."""
     from .evaluate import imagination_metrics
@@ -249,7 +251,7 @@ def imagined_precision(model: WorldModel, dev: SplitTokens, mixed: SplitTokens |
     for name, data in (("", dev), ("mixed_", mixed)):
         if data is None:
             continue
-        m = imagination_metrics(model, data, args.select_episodes, seed=args.seed)
+        m = imagination_metrics(model, data, episodes, seed=seed)
         out[f"{name}reward_precision"] = m.reward_precision
         out[f"{name}termination_precision"] = m.termination_precision
         # what tells a model that rewards too often from one whose entities drift (docs/language.md)
@@ -477,7 +479,8 @@ def train(args: TrainArgs, log=print) -> dict:
         for g in optimizer.param_groups:
             g["lr"] = lr
         # DistributedDataParallel expects one forward per backward: one part there.
-        parts = train_data.sample_parts(rng, args.batch, 1 if distributed else args.parts, own_manuals=bool(teacher))
+        parts_n = 1 if distributed else args.parts
+        parts = train_data.sample_parts(rng, args.batch, parts_n, own_manuals=teacher is not None)
         with torch.autocast("cpu", dtype=torch.bfloat16, enabled=args.bf16):
             if teacher is None and args.event_weight == 1.0:
                 out_, kl = batch_loss([net(*part) for part in parts]), None
@@ -525,7 +528,7 @@ def train(args: TrainArgs, log=print) -> dict:
                     dev["mixed_total"] = mixed["total"]
                     dev["selection"] = (dev["total"] + mixed["total"]) / 2
                 if args.select == "imagined-reward":
-                    dev.update(imagined_precision(model, dev_data, dev_mixed, args))
+                    dev.update(imagined_precision(model, dev_data, dev_mixed, args.select_episodes, args.seed))
                     model.train()
                 record(
                     {
