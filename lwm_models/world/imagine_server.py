@@ -70,10 +70,11 @@ class ImagineServer:
         self._worker = threading.Thread(target=self._work, name="imagine-batcher", daemon=True)
         self._worker.start()
 
-    def serve(self, text: str) -> tuple[str, Exception | None]:
+    def serve(self, text: str, agent: str | None = None) -> tuple[str, Exception | None]:
         """What the service answers to a request string (a valid response, never an exception),
-        and the error when the request was refused, for the caller to report."""
-        return serve_json(self.sim, text, self.handle)
+        and the error when the request was refused, for the caller to report. `agent`: whose
+        manual a request that names none is imagined under."""
+        return serve_json(self.sim, text, self.handle, agent)
 
     def handle(self, request: dict) -> dict:
         """The response to a valid request: one-shot requests wait for their batch."""

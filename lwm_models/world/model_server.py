@@ -9,9 +9,11 @@ This is the ROS-free engine behind the world-model server node (and anything els
   step costs one block of tokens, not the whole prefix. A session reads the manual that was
   current when it opened and says which version that was.
 
-Manuals: each replacement that changes the text is a new version; the state (manual, version,
-source, game) is written atomically to `state_path` when given, so a restarted world-model server keeps
-counting from where it was instead of handing out version 1 again.
+Manuals: the server keeps one per agent it serves (a fleet's agents share the model and its
+batches, not necessarily the manual); a manual goes to one agent or to all. Each replacement that
+changes an agent's text is a new version of its manual; the state (per agent: manual, version,
+source, game) is written atomically to `state_path` when given, so a restarted world-model server
+keeps counting from where it was instead of handing out version 1 again.
 """
 
 from __future__ import annotations
@@ -21,7 +23,7 @@ import json
 import os
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -51,7 +53,29 @@ class Session:
     last_used: float = field(default_factory=time.monotonic)
 
 
+@dataclass
+class ManualState:
+    """One agent's manual as the server holds it: the text, what the world model read in it, the
+    version (each change a new one) and where it came from. A fleet's agents each have one, so
+    that a manual can go to one agent or to all of them."""
+
+    manual: list[str] | None = None
+    reading: list[str | None] | None = None  # the identity the model reads each description as about
+    version: int = 0
+    source: str = ""
+    game: str = ""  # split:index of the last environment manual
+    batch: ManualBatch | None = None
+    cond: Conditioning | None = None  # the model's conditioning on `batch`, computed once
+
+    def to_json(self) -> dict:
+        return {"manual": self.manual, "version": self.version, "source": self.source, "game": self.game}
+
+
 class WorldModelServer:
+    """agents: the agents whose manuals the server keeps (their ROS namespaces without slashes);
+    the default, one unnamed agent, is the single-agent system. A request names its agent
+    (`agent`), or is served under the first one's manual."""
+
     def __init__(
         self,
         checkpoint: str | Path | None = None,
@@ -59,6 +83,7 @@ class WorldModelServer:
         state_path: str | Path | None = None,
         max_sessions: int = 32,
         session_ttl: float = 300.0,
+        agents: Sequence[str] = ("",),
     ) -> None:
         self.checkpoint = Path(checkpoint) if checkpoint else shipped_checkpoint("emma")
         self.model, self.config = load_checkpoint(self.checkpoint)
@@ -66,13 +91,10 @@ class WorldModelServer:
         if self.model.needs_parse:
             raise LwmError(f"the server serves models that read manuals as text; {self.kind} needs true parses")
         self.encoder = encoder if encoder is not None else self.model.frozen_text_encoder()
-        self.manual: list[str] | None = None
-        self.reading: list[str | None] | None = None  # the identity the model reads each description as about
-        self.manual_version = 0
-        self.manual_source = ""
-        self.game = ""  # split:index of the last environment manual
-        self._batch = None
-        self._cond: tuple[ManualBatch, Conditioning] | None = None  # the current manual's conditioning
+        if not agents or len(set(agents)) != len(agents):
+            raise LwmError(f"the server needs one or more distinct agents, got {list(agents)}")
+        self.agents: dict[str, ManualState] = {agent: ManualState() for agent in agents}
+        self.default_agent = agents[0]
         self.state_path = Path(state_path) if state_path else None
         self.sessions: dict[str, Session] = {}
         self.max_sessions = max_sessions
@@ -86,73 +108,118 @@ class WorldModelServer:
     def model_name(self) -> str:
         return f"{self.kind} ({self.config.get('preset', '?')}, {self.config.get('steps', '?')} steps)"
 
-    # ------------------------------------------------------------------ manual
-    def set_manual(self, descriptions: list[str], source: str = "") -> tuple[int, bool]:
-        """Replace the manual. Returns (version, changed): the same text again is not a new version
-        (a latched manual is delivered again to a restarted node). A rejected manual changes nothing."""
-        with self.lock:
-            if self.manual == list(descriptions) and self._batch is not None:
-                return self.manual_version, False
-            batch = self.model.read_manual(descriptions, self.encoder)
-            self.manual, self._batch = list(descriptions), batch
-            self.reading = read_identities(self.model, self.encoder, self.manual)
-            self.manual_version += 1
-            self.manual_source = source
-            self._save()
-            return self.manual_version, True
+    def state(self, agent: str | None = None) -> ManualState:
+        """An agent's manual state (None: the first agent's). Raises RequestError for an agent the
+        server does not serve."""
+        name = self.default_agent if agent is None else agent
+        try:
+            return self.agents[name]
+        except KeyError:
+            served = ", ".join(repr(a) for a in self.agents)
+            raise RequestError(f"this server serves no agent {name!r} (it serves {served})") from None
 
-    def board(self) -> list[str] | None:
-        """The identities on the current game's board; None when the game is not known yet."""
+    # The first agent's manual, as the single-agent system and its tests read it.
+    manual = property(lambda self: self.state().manual)
+    reading = property(lambda self: self.state().reading)
+    manual_version = property(lambda self: self.state().version)
+    manual_source = property(lambda self: self.state().source)
+    game = property(lambda self: self.state().game)
+    _batch = property(lambda self: self.state().batch)
+
+    # ------------------------------------------------------------------ manual
+    def set_manual(self, descriptions: list[str], source: str = "", agent: str | None = None) -> tuple[int, bool]:
+        """Replace an agent's manual. Returns (version, changed): the same text again is not a new
+        version (a latched manual is delivered again to a restarted node). A rejected manual
+        changes nothing."""
+        with self.lock:
+            state = self.state(agent)
+            if state.manual == list(descriptions) and state.batch is not None:
+                return state.version, False
+            batch = self.model.read_manual(descriptions, self.encoder)
+            self._assign(state, list(descriptions), batch, read_identities(self.model, self.encoder, descriptions))
+            state.source = source
+            self._save()
+            return state.version, True
+
+    def set_fleet_manual(self, descriptions: list[str], source: str = "") -> dict[str, tuple[int, bool]]:
+        """Give every agent the same manual (read once): each agent's (version, changed)."""
+        with self.lock:
+            batch = self.model.read_manual(descriptions, self.encoder)  # raises before anything changes
+            reading = read_identities(self.model, self.encoder, descriptions)
+            out = {}
+            for name, state in self.agents.items():
+                if state.manual == list(descriptions) and state.batch is not None:
+                    out[name] = (state.version, False)
+                    continue
+                self._assign(state, list(descriptions), batch, reading)
+                state.source = source
+                out[name] = (state.version, True)
+            self._save()
+            return out
+
+    @staticmethod
+    def _assign(state: ManualState, manual: list[str], batch: ManualBatch, reading) -> None:
+        state.manual, state.batch, state.cond, state.reading = manual, batch, None, reading
+        state.version += 1
+
+    def board(self, agent: str | None = None) -> list[str] | None:
+        """The identities on the board of an agent's game; None when the game is not known yet."""
         from ..data.splits import load_split
 
-        split, _, index = self.game.rpartition(":")
+        split, _, index = self.state(agent).game.rpartition(":")
         try:
             game = load_split(split)[int(index)]
         except (LwmError, ValueError, IndexError, KeyError, OSError):
             return None
         return [e.identity for e in game.entities]
 
-    def ungrounded(self) -> str | None:
-        """What to tell a person when the world model reads a description of the current manual as
-        about an entity that is not on the board (world/reading.py); None when all are placed."""
+    def ungrounded(self, agent: str | None = None) -> str | None:
+        """What to tell a person when the world model reads a description of an agent's manual as
+        about an entity that is not on its board (world/reading.py); None when all are placed."""
         with self.lock:
-            board = self.board()
-            if board is None or not self.manual or self.reading is None:
+            state, board = self.state(agent), self.board(agent)
+            if board is None or not state.manual or state.reading is None:
                 return None
-            return ungrounded_note(self.manual, self.reading, board)
+            return ungrounded_note(state.manual, state.reading, board)
 
-    def take_env_manual(self, descriptions: list[str], episode_id: str = "") -> tuple[int, bool]:
-        """The environment's manual is the default: it replaces the manual when no person has
-        given one, or when the game changed (a person's manual was about the previous game)."""
+    def take_env_manual(
+        self, descriptions: list[str], episode_id: str = "", agent: str | None = None
+    ) -> tuple[int, bool]:
+        """The environment's manual is the default: it replaces the agent's manual when no person
+        has given one, or when the game changed (a person's manual was about the previous game)."""
         game = game_of(episode_id) if episode_id else ""
         with self.lock:
-            if self.manual_source not in ("", "env") and (not game or game == self.game):
-                return self.manual_version, False
-            self.game = game or self.game
-            return self.set_manual(descriptions, "env")
+            state = self.state(agent)
+            if state.source not in ("", "env") and (not game or game == state.game):
+                return state.version, False
+            state.game = game or state.game
+            return self.set_manual(descriptions, "env", agent)
 
-    def status(self) -> dict:
+    def status(self, agent: str | None = None) -> dict:
         with self.lock:
-            return self._status()
+            return self._status(self.default_agent if agent is None else agent)
 
-    def _status(self) -> dict:
+    def _status(self, agent: str) -> dict:
+        state = self.state(agent)
         out = {
             "node": "lwm_world_model",
             "ready": True,
             "model": self.model_name,
             "checkpoint": str(self.checkpoint),
-            "manual_version": self.manual_version,
-            "manual_source": self.manual_source,
+            "manual_version": state.version,
+            "manual_source": state.source,
             "sessions": len(self.sessions),
-            "game": self.game,
+            "game": state.game,
         }
-        if self.manual:
-            out["manual"] = self.manual
-        board = self.board()
+        if agent:
+            out["agent"] = agent
+        if state.manual:
+            out["manual"] = state.manual
+        board = self.board(agent)
         if board is not None:
             out["board"] = board
-            if self.manual and self.reading is not None and any(r is not None for r in self.reading):
-                out["reading"] = grounding(self.reading, board)
+            if state.manual and state.reading is not None and any(r is not None for r in state.reading):
+                out["reading"] = grounding(state.reading, board)
         return out
 
     def _save(self) -> None:
@@ -160,23 +227,29 @@ class WorldModelServer:
             return
         self.state_path.parent.mkdir(parents=True, exist_ok=True)
         tmp = self.state_path.with_suffix(".tmp")
-        state = {"manual": self.manual, "version": self.manual_version, "source": self.manual_source, "game": self.game}
-        tmp.write_text(json.dumps(state))
+        tmp.write_text(json.dumps({"agents": {name: s.to_json() for name, s in self.agents.items()}}))
         os.replace(tmp, self.state_path)
 
     def _restore(self) -> None:
+        """Each served agent's manual from the state file; a file from before fleets (one manual,
+        no `agents`) is the first agent's. Agents the file does not know start with no manual."""
         if self.state_path is None or not self.state_path.is_file():
             return
         try:
-            state = json.loads(self.state_path.read_text())
-            if state.get("manual"):
-                self._batch = self.model.read_manual(state["manual"], self.encoder)
-                self.manual = list(state["manual"])
-                self.reading = read_identities(self.model, self.encoder, self.manual)
-            self.manual_version = int(state.get("version", 0))
-            self.manual_source = str(state.get("source", ""))
-            self.game = str(state.get("game", ""))
-        except (OSError, ValueError, TypeError, KeyError) as exc:
+            saved = json.loads(self.state_path.read_text())
+            by_agent = saved["agents"] if "agents" in saved else {self.default_agent: saved}
+            for name, entry in by_agent.items():
+                if name not in self.agents:
+                    continue
+                state = self.agents[name]
+                if entry.get("manual"):
+                    state.batch = self.model.read_manual(entry["manual"], self.encoder)
+                    state.manual = list(entry["manual"])
+                    state.reading = read_identities(self.model, self.encoder, state.manual)
+                state.version = int(entry.get("version", 0))
+                state.source = str(entry.get("source", ""))
+                state.game = str(entry.get("game", ""))
+        except (OSError, ValueError, TypeError, KeyError, AttributeError) as exc:
             raise LwmError(f"cannot read the world-model server state {self.state_path}: {exc}") from None
 
     # ------------------------------------------------------------------ requests
@@ -190,12 +263,15 @@ class WorldModelServer:
         out["seconds"] = round(time.perf_counter() - began, 4)
         return out
 
-    def _manual_for(self, request: dict):
+    def _manual_for(self, request: dict) -> tuple[ManualBatch, list[str], int, ManualState | None]:
+        """The manual a request is imagined under: its own, or its agent's current one (then also
+        that agent's state, whose conditioning is cached)."""
         if "manual" in request:
-            return self.model.read_manual(request["manual"], self.encoder), list(request["manual"]), 0
-        if self._batch is None:
-            raise RequestError("no manual yet: publish one on /feedback/manual or put one in the request")
-        return self._batch, list(self.manual), self.manual_version
+            return self.model.read_manual(request["manual"], self.encoder), list(request["manual"]), 0, None
+        state = self.state(request.get("agent"))
+        if state.batch is None:
+            raise RequestError("no manual yet: publish one on feedback/manual or put one in the request")
+        return state.batch, list(state.manual), state.version, state
 
     @staticmethod
     def trajectory_count(request: dict) -> int:
@@ -230,11 +306,11 @@ class WorldModelServer:
         """A one-shot request as a `OneShot` of a continuous batch (raises RequestError for a request
         that cannot be served). It reads the manual current now, whenever its steps run."""
         with self.lock:
-            batch, manual, version = self._manual_for(request)
+            batch, manual, version, state = self._manual_for(request)
         max_steps = int(request.get("max_steps", 32))
         starts, actions = self._trajectories(request, max_steps)
         return OneShot(
-            condition_rows(self._conditioning(batch), len(starts)),
+            condition_rows(self._conditioning(batch, state), len(starts)),
             starts,
             actions,
             max_steps,
@@ -244,15 +320,14 @@ class WorldModelServer:
             info={"manual": manual, "manual_version": version},
         )
 
-    def _conditioning(self, batch: ManualBatch) -> Conditioning:
-        """The model's conditioning on a manual; the current manual's is computed once, not per
-        request (a few milliseconds of the text encoder each, measured)."""
-        cached = self._cond
-        if cached is not None and cached[0] is batch:
-            return cached[1]
-        cond = self.model.condition_on(batch)
-        if batch is self._batch:
-            self._cond = (batch, cond)
+    def _conditioning(self, batch: ManualBatch, state: ManualState | None) -> Conditioning:
+        """The model's conditioning on a manual; an agent's current manual's is computed once, not
+        per request (a few milliseconds of the text encoder each, measured)."""
+        if state is None or state.batch is not batch:
+            return self.model.condition_on(batch)
+        cond = state.cond
+        if cond is None:
+            cond = state.cond = self.model.condition_on(batch)
         return cond
 
     def answer(self, shot: OneShot) -> dict:
@@ -285,7 +360,7 @@ class WorldModelServer:
         self._expire()
         if len(self.sessions) >= self.max_sessions:
             raise RequestError(f"{self.max_sessions} imagination sessions are open; close one first")
-        batch, manual, version = self._manual_for(request)
+        batch, manual, version, _ = self._manual_for(request)
         starts = self._starts(request)
         rollout = StepwiseImagination(
             self.model,
@@ -356,16 +431,19 @@ def error_response(error: Exception) -> dict:
 
 
 def serve_json(
-    sim: WorldModelServer, text: str, handle: Callable[[dict], dict] | None = None
+    sim: WorldModelServer, text: str, handle: Callable[[dict], dict] | None = None, agent: str | None = None
 ) -> tuple[str, Exception | None]:
     """What the service answers to a request string (a valid response, never an exception), and
     the error when the request was refused, for the caller to report. `handle` (default
-    `sim.handle`) answers a valid request: the ImagineServer passes its batching one."""
+    `sim.handle`) answers a valid request: the ImagineServer passes its batching one. `agent`: the
+    agent whose manual a request that names none is imagined under (an agent's own service)."""
     try:
         request = messages.parse("imagine_request", text)
+        if agent is not None:
+            request.setdefault("agent", agent)
         return messages.dump("imagine_response", (handle or sim.handle)(request)), None
     except Exception as exc:  # a bad request must never take the server down
         return messages.dump("imagine_response", error_response(exc)), exc
 
 
-__all__ = ["RequestError", "WorldModelServer", "error_response", "serve_json"]
+__all__ = ["ManualState", "RequestError", "WorldModelServer", "error_response", "serve_json"]

@@ -1,3 +1,5 @@
+from glob import glob
+
 from setuptools import setup
 
 setup(
@@ -8,6 +10,7 @@ setup(
     data_files=[
         ("share/ament_index/resource_index/packages", ["resource/lwm_nodes"]),
         ("share/lwm_nodes", ["package.xml"]),
+        ("share/lwm_nodes/config", sorted(glob("config/*.yaml"))),
     ],
     install_requires=["setuptools"],
     description="Thin rclpy nodes over lwm_models",

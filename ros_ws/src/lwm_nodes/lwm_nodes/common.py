@@ -46,6 +46,8 @@ FEEDBACK = QoSProfile(
 # Answers to what a sender gave a node (feedback, labels, a manual): kept (transient local), so
 # that a sender whose subscription matched a moment late still finds its answer.
 ACKS = FEEDBACK
+# Absolute, like /rosout: one channel for the whole system, a fleet's namespaced agents included,
+# so that a sender hears the answer of whichever node took its message (acks carry its msg_id).
 ERRORS_TOPIC = "/lwm/errors"
 ACKS_TOPIC = "/lwm/acks"
 FASTDDS_PROFILE = Path(__file__).resolve().parents[3] / "fastdds_profile.xml"
@@ -98,6 +100,7 @@ class JsonNode(Node):
         saying what it did) or refused, with the reason in plain words."""
         if acks and self._acks is None:
             self._acks = self.create_publisher(String, ACKS_TOPIC, ACKS)
+        where = self.resolve_topic_name(topic)  # errors and answers name the topic in full: one of a fleet's
 
         def callback(msg: String) -> None:
             msg_id = None
@@ -106,12 +109,12 @@ class JsonNode(Node):
                 payload = messages.parse(kind, msg.data)
                 done = handler(payload)
             except Exception as exc:  # a bad message must never take the node down
-                self.report_error(topic, exc, msg.data)
+                self.report_error(where, exc, msg.data)
                 if acks:
-                    self.acknowledge(topic, msg_id, False, messages.plain_reason(exc), msg.data)
+                    self.acknowledge(where, msg_id, False, messages.plain_reason(exc), msg.data)
                 return
             if acks:
-                self.acknowledge(topic, msg_id, True, done or "taken", msg.data)
+                self.acknowledge(where, msg_id, True, done or "taken", msg.data)
 
         return self.create_subscription(String, topic, callback, qos)
 

@@ -29,10 +29,10 @@ class EnvNode(JsonNode):
 
             pools = DescriptionPools.from_files(texts.split(","))
         self.session = GameSession(split, index, pools, max_steps)
-        self.publish_state = self.json_publisher("/env/state", "state", LATCHED)
-        self.publish_manual = self.json_publisher("/env/manual", "manual", LATCHED)
-        self.create_service(Json, "/env/reset", self.on_reset)
-        self.create_service(Json, "/env/step", self.on_step)
+        self.publish_state = self.json_publisher("env/state", "state", LATCHED)
+        self.publish_manual = self.json_publisher("env/manual", "manual", LATCHED)
+        self.create_service(Json, "env/reset", self.on_reset)
+        self.create_service(Json, "env/step", self.on_step)
         self._announce(self.session.reset(seed))
         self.get_logger().info(f"serving {split}[{index}]: {self.session.env.spec}")
 
@@ -61,7 +61,7 @@ class EnvNode(JsonNode):
             self._announce(state)
             return state
 
-        res.response = self._serve("/env/reset", "env_reset_request", req.request, act)
+        res.response = self._serve(self.resolve_service_name("env/reset"), "env_reset_request", req.request, act)
         return res
 
     def on_step(self, req, res):
@@ -70,7 +70,7 @@ class EnvNode(JsonNode):
             self.publish_state(state)
             return state
 
-        res.response = self._serve("/env/step", "env_step_request", req.request, act)
+        res.response = self._serve(self.resolve_service_name("env/step"), "env_step_request", req.request, act)
         return res
 
 

@@ -1,10 +1,11 @@
 """Human-feedback node: the person's side of the review.
 
 It shows each plan to a reviewer and publishes what they answer: a decision on the plan
-(/review/feedback), labels for the planner's label requests (/review/labels) and new manuals
-(/feedback/manual), each signed as the reviewer (lwm_nodes.trust) and each answered by the
+(review/feedback), labels for the planner's label requests (review/labels) and new manuals
+(feedback/manual, or parameter `manual_topic`), each signed as the reviewer (lwm_nodes.trust) and each answered by the
 receiving node on /lwm/acks, an answer that comes back to the reviewer (taken, or refused with the
-reason). It also starts the next episode, or this one again, on the reviewer's word (/env/reset).
+reason). It also starts the next episode, or this one again, on the reviewer's word (env/reset).
+Names are relative: in an agent's namespace the node reviews that agent.
 
 The reviewer is one of three, chosen by parameter; each is a module of its own:
 - the terminal (default): lwm_nodes/terminal_reviewer.py, commands typed on stdin;
@@ -78,24 +79,27 @@ class HumanNode(JsonNode):
         def sender(topic: str, schema: str, qos) -> Callable[[dict], str]:
             return self._answered(self.signer.publisher(self.json_publisher(topic, schema, qos), schema))
 
-        self.publish_feedback = sender("/review/feedback", "review_feedback", FEEDBACK)
-        self.publish_labels = sender("/review/labels", "labels", FEEDBACK)
-        self.publish_manual = sender("/feedback/manual", "manual", LATCHED)
+        self.publish_feedback = sender("review/feedback", "review_feedback", FEEDBACK)
+        self.publish_labels = sender("review/labels", "labels", FEEDBACK)
+        # feedback/manual in this node's namespace: its agent's manual (the single agent's, or in a
+        # fleet, one agent's); the launcher points a fleet's reviewer at /feedback/manual, every agent's.
+        manual_topic = p("manual_topic", "feedback/manual").value
+        self.publish_manual = sender(manual_topic, "manual", LATCHED)
         self.create_subscription(String, ACKS_TOPIC, self.on_ack, ACKS)
         self.imaginer = ServiceImaginer(
-            json_caller(self, self.create_client(Json, "/lwm/imagine"), "imagine_response", 30.0)
+            json_caller(self, self.create_client(Json, "lwm/imagine"), "imagine_response", 30.0)
         )
-        self.env_reset = json_caller(self, self.create_client(Json, "/env/reset"), "env_response", 30.0)
+        self.env_reset = json_caller(self, self.create_client(Json, "env/reset"), "env_response", 30.0)
         self.history_call = json_caller(
-            self, self.create_client(Json, "/planner/history"), "history_response", HISTORY_WAIT_S
+            self, self.create_client(Json, "planner/history"), "history_response", HISTORY_WAIT_S
         )
-        self.json_subscription("/env/state", "state", self.on_state, LATCHED)
-        self.json_subscription("/planner/plan", "plan", self.on_plan, LATCHED)
-        self.json_subscription("/planner/label_request", "label_request", self.on_label_request, LATCHED)
-        self.json_subscription("/planner/report", "execution_report", self.on_report, LATCHED)
-        self.json_subscription("/planner/progress", "progress", self.reviewer.on_progress, LATCHED)
+        self.json_subscription("env/state", "state", self.on_state, LATCHED)
+        self.json_subscription("planner/plan", "plan", self.on_plan, LATCHED)
+        self.json_subscription("planner/label_request", "label_request", self.on_label_request, LATCHED)
+        self.json_subscription("planner/report", "execution_report", self.on_report, LATCHED)
+        self.json_subscription("planner/progress", "progress", self.reviewer.on_progress, LATCHED)
         if self.reviewer.shows_status:
-            self.json_subscription("/lwm/status", "status", self.reviewer.on_status, LATCHED)
+            self.json_subscription("lwm/status", "status", self.reviewer.on_status, LATCHED)
         self.reviewer.start()
 
     # ------------------------------------------------------------------ what this node sends

@@ -20,7 +20,7 @@ import subprocess
 import sys
 import threading
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from lwm_models import run_dirs, signing
@@ -36,20 +36,31 @@ class NodeSpec:
     interactive: bool = False  # inherits the terminal (its output is not prefixed or stored)
     final: bool = False  # when it exits with 0, the whole system stops (the scripted human)
     first: bool = False  # ready before the others start, stopped after they exit (the recorder)
+    namespace: str = ""  # a fleet's agent: its nodes' relative names resolve under /<namespace>
+    config: Path | None = None  # its parameters' YAML file; `params` override it
 
     def command(self) -> list[str]:
         cmd = [sys.executable, "-m", self.module]
-        if self.params:
+        if self.params or self.namespace or self.config:
             cmd.append("--ros-args")
+            if self.namespace:
+                cmd += ["-r", f"__ns:=/{self.namespace}"]
+            if self.config is not None:
+                cmd += ["--params-file", str(self.config)]  # first: a later -p wins over the file
             for k, v in self.params.items():
                 cmd += ["-p", f"{k}:={v}"]
         return cmd
+
+    @property
+    def role(self) -> str:
+        """What the node is (env, world_model, planner, human, recorder), whichever agent it serves."""
+        return self.name.rpartition("/")[2]
 
 
 class Supervised:
     def __init__(self, spec: NodeSpec, log_dir: Path, echo: bool) -> None:
         self.spec = spec
-        self.log_path = log_dir / f"{spec.name}.log"
+        self.log_path = log_dir / f"{spec.name.replace('/', '.')}.log"
         self.echo = echo
         self.ready = threading.Event()
         self.restarts = 0
@@ -88,56 +99,84 @@ class Supervised:
             self.proc.send_signal(sig)
 
 
+CONFIG_DIR = Path(__file__).resolve().parents[1] / "config"
+# Each node's parameters, commented, in a YAML file of its own (passed with --params-file); the
+# launcher adds only what its command line was given and the run's paths.
+CONFIG_FILES = {
+    "env": "messenger_env.yaml",
+    "world_model": "lwm_world_model.yaml",
+    "planner": "planner.yaml",
+    "human": "human_feedback.yaml",
+    "recorder": "lwm_recorder.yaml",
+}
+
+
+def config_value(config_dir: Path, role: str, key: str):
+    """A parameter's value in a node's YAML file (None when the file does not set it)."""
+    import yaml
+
+    loaded = yaml.safe_load((config_dir / CONFIG_FILES[role]).read_text()) or {}
+    return loaded.get("/**", {}).get("ros__parameters", {}).get(key)
+
+
 def default_nodes(
-    checkpoint: str,
-    split: str,
-    index: int,
-    seed: int,
-    policy: str,
-    ledger: str,
-    human: str,
-    state: str = "",
-    planner: dict[str, str] | None = None,
-    reviewer: dict[str, str] | None = None,
-    texts: list[str] | None = None,
-    keys_file: str = "",
-    trusted: str = "",
-    page_port: int = 0,
-    person: str = "terminal",
+    human: str, given: dict[str, dict[str, str]] | None = None, config_dir: Path = CONFIG_DIR
 ) -> list[NodeSpec]:
-    """human: 'scripted', 'interactive', 'page' (the browser, on page_port; its history reads
-    `ledger`) or 'none'. The planner loads no world model: only the world-model server gets the checkpoint.
-    keys_file: the reviewers' keys; trusted: the reviewers the world-model server and the planner take
-    feedback from (comma-separated; empty: all in the key file)."""
-    trust = {**({"keys_file": keys_file} if keys_file else {}), **({"trusted": trusted} if trusted else {})}
-    signs = {"keys_file": keys_file} if keys_file else {}
+    """The system's nodes, each with its YAML file from config_dir and the parameters `given` per
+    node (env, world_model, planner, human), which override the file's. human: 'scripted',
+    'interactive', 'page' (the browser; give it page_port) or 'none'. The planner loads no world
+    model: only the world-model server gets the checkpoint."""
+    given = given or {}
+
+    def spec(role: str, module: str, **extra) -> NodeSpec:
+        return NodeSpec(role, module, dict(given.get(role, {})), config=config_dir / CONFIG_FILES[role], **extra)
+
     nodes = [
-        NodeSpec(
-            "env",
-            "lwm_nodes.env_node",
-            {"split": split, "index": str(index), "seed": str(seed), **({"texts": ",".join(texts)} if texts else {})},
-        ),
-        NodeSpec(
-            "world_model",
-            "lwm_nodes.world_model_node",
-            {**({"checkpoint": checkpoint} if checkpoint else {}), **({"state": state} if state else {}), **trust},
-        ),
-        NodeSpec(
-            "planner",
-            "lwm_nodes.planner_node",
-            {"ledger": ledger, **({"policy": policy} if policy else {}), **(planner or {}), **trust},
-        ),
+        spec("env", "lwm_nodes.env_node"),
+        spec("world_model", "lwm_nodes.world_model_node"),
+        spec("planner", "lwm_nodes.planner_node"),
     ]
     if human == "scripted":
-        params = {"scripted": "true", **signs, **(reviewer or {})}
-        nodes.append(NodeSpec("human", "lwm_nodes.human_node", params, final=True))
-    elif human == "page":
-        page = {"page_port": str(page_port), **({"reviewer": person} if person else {})}
-        nodes.append(NodeSpec("human", "lwm_nodes.human_node", {**signs, **page}))
-    elif human == "interactive":
-        params = {**signs, "reviewer": person}
-        nodes.append(NodeSpec("human", "lwm_nodes.human_node", params, interactive=True, final=True))
+        nodes.append(spec("human", "lwm_nodes.human_node", final=True))
+        nodes[-1].params["scripted"] = "true"
+    elif human in ("page", "interactive"):
+        nodes.append(
+            spec("human", "lwm_nodes.human_node", interactive=human == "interactive", final=human == "interactive")
+        )
     return nodes
+
+
+def fleet(nodes: list[NodeSpec], agents: int, seed: int, log_dir: Path) -> list[NodeSpec]:
+    """The single agent's nodes made a fleet of `agents`: one world-model server serving them all
+    (one model, its batches shared), and for each agent (agent1, agent2, ...) its environment,
+    planner and reviewer in a namespace of its own. The agents play the same game from seeds SEED,
+    SEED+1, ... (different boards, the same entities), each with its ledger and policies in
+    LOG_DIR/<agent>/. The first agent's reviewer sends its language feedback to every agent
+    (/feedback/manual): one manual re-plans the fleet."""
+    names = [f"agent{i + 1}" for i in range(agents)]
+    out = []
+    for spec in nodes:
+        if spec.role == "world_model":
+            out.append(replace(spec, params={**spec.params, "agents": f"[{','.join(names)}]"}))
+        elif spec.role == "recorder":
+            out.append(spec)
+    for i, agent in enumerate(names):
+        for spec in nodes:
+            if spec.role in ("world_model", "recorder"):
+                continue
+            params = dict(spec.params)
+            if spec.role == "env":
+                params["seed"] = str(seed + i)
+            elif spec.role == "planner":
+                params["ledger"] = str(log_dir / agent / run_dirs.LEDGER_FILE)
+            elif spec.role == "human":
+                if i == 0:
+                    params["manual_topic"] = "/feedback/manual"
+                else:
+                    params.pop("language", None)
+                    params.pop("texts", None)
+            out.append(replace(spec, name=f"{agent}/{spec.name}", namespace=agent, params=params))
+    return out
 
 
 def supervise(
@@ -168,15 +207,21 @@ def supervise(
     else:
         print(f"launcher: all {len(procs)} nodes ready (logs in {log_dir})", flush=True)
     began = time.monotonic()
+    finished: set[Supervised] = set()  # final nodes that have ended their work
     while not stop.is_set():
         if run_for is not None and time.monotonic() - began > run_for:
             break
         for p in procs:
+            if p in finished:
+                continue
             code = p.proc.poll()
             if code is not None and p.spec.final and code == 0:
                 print(f"launcher: {p.spec.name} finished", flush=True)
-                stop.set()
-                break
+                finished.add(p)
+                if all(q in finished for q in procs if q.spec.final):  # a fleet's last reviewer
+                    stop.set()
+                    break
+                continue
             if code is not None:
                 p.exit_codes.append(code)
                 if p.restarts >= max_restarts:
@@ -261,8 +306,10 @@ def describe_run(log_dir: Path, ledger: Path, state: Path, resumed: bool) -> str
     if state.is_file():
         try:
             saved = json.loads(state.read_text())
-            manual = f"; the world-model server's manual v{saved.get('manual_version', '?')}"
-        except (OSError, ValueError):
+            by_agent = saved["agents"] if "agents" in saved else {"": saved}
+            versions = [f"{name + ' ' if name else ''}v{entry.get('version', '?')}" for name, entry in by_agent.items()]
+            manual = f"; the world-model server's manual {', '.join(versions)}"
+        except (OSError, ValueError, TypeError, AttributeError):
             manual = f"; the world-model server's state {state} cannot be read"
     return (
         f"launcher: resuming the run in {log_dir}: {reviews} review(s) in its ledger, {finished} finished "
@@ -270,14 +317,63 @@ def describe_run(log_dir: Path, ledger: Path, state: Path, resumed: bool) -> str
     )
 
 
+def given_parameters(
+    args: argparse.Namespace, human: str, ledger: Path, state: Path, keys_file: Path, person: str
+) -> dict[str, dict[str, str]]:
+    """Per node, the parameters this launch sets over the YAML files: the options the command line
+    was given, and the run's own paths (ledger, manual state, key file)."""
+
+    def chosen(**values) -> dict[str, str]:
+        return {k: (str(v).lower() if isinstance(v, bool) else str(v)) for k, v in values.items() if v is not None}
+
+    trust = chosen(keys_file=keys_file, trusted=args.trusted or None)
+    texts = ",".join(args.texts) if args.texts else None
+    given = {
+        "env": chosen(split=args.split, index=args.index, seed=args.seed, texts=texts),
+        "world_model": chosen(checkpoint=args.checkpoint, state=state, **trust),
+        "planner": chosen(
+            ledger=ledger,
+            policy=args.policy,
+            iterations=args.iterations,
+            futures=args.futures,
+            constrained=args.constrained,
+            constrained_learning=args.constrained_learning,
+            **trust,
+        ),
+        "human": chosen(keys_file=keys_file),
+    }
+    if human == "scripted":
+        # Nobody watches the scripted reviewer's screen: one line per plan unless --show-frames.
+        given["human"].update(
+            chosen(
+                teach=args.teach, approve_return=args.approve_return, episodes=args.episodes, quiet=not args.show_frames
+            )
+        )
+        if args.language:
+            given["human"].update(chosen(language=True, texts=texts))
+    elif human == "page":
+        given["human"].update(chosen(page_port=args.page, reviewer=person or None))
+    elif human == "interactive":
+        given["human"].update(chosen(reviewer=person))
+    return given
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="run_nodes.sh", description="Start the LWM system's nodes.")
     parser.add_argument(
-        "--checkpoint", default="", help="the world model the world-model server serves (default: shipped EMMA-LWM)"
+        "--checkpoint", default=None, help="the world model the world-model server serves (default: shipped EMMA-LWM)"
     )
-    parser.add_argument("--split", default="newall-test", help="split of the game the environment runs")
-    parser.add_argument("--index", type=int, default=0, help="game index in the split")
-    parser.add_argument("--seed", type=int, default=0, help="episode seed")
+    parser.add_argument(
+        "--config",
+        type=Path,
+        default=CONFIG_DIR,
+        help="directory of the nodes' parameter files (messenger_env.yaml, lwm_world_model.yaml, planner.yaml, "
+        "human_feedback.yaml, lwm_recorder.yaml), each passed to its node with --params-file; the options below "
+        "override single values (default: the lwm_nodes package's config/)",
+    )
+    parser.add_argument("--split", default=None, help="split of the game the environment runs (default: newall-test)")
+    parser.add_argument("--index", type=int, default=None, help="game index in the split (default 0)")
+    parser.add_argument("--seed", type=int, default=None, help="episode seed (default 0)")
     parser.add_argument(
         "--log-dir",
         type=Path,
@@ -299,7 +395,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--max-restarts", type=int, default=3)
     parser.add_argument("--quiet", action="store_true", help="do not echo the nodes' output")
     parser.add_argument("--run-for", type=float, default=None, help="stop after this many seconds (demos, tests)")
-    parser.add_argument("--policy", default="", help="policy directory for the planner (default: shipped, if any)")
+    parser.add_argument("--policy", default=None, help="policy directory for the planner (default: shipped, if any)")
     parser.add_argument("--ledger", default=None, help="review ledger, SQLite (default: LOG_DIR/ledger.sqlite)")
     parser.add_argument(
         "--state",
@@ -331,27 +427,27 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--constrained",
         action=argparse.BooleanOptionalAction,
-        default=True,
+        default=None,
         help="the plans and futures a person reviews are imagined under the game's rules (decoding constraints); "
         "--no-constrained shows the world model's raw samples",
     )
     parser.add_argument(
         "--constrained-learning",
         action=argparse.BooleanOptionalAction,
-        default=False,
+        default=None,
         help="the planner's learning rounds (online imitation) are imagined under the game's rules too",
     )
     parser.add_argument(
         "--teach",
         choices=["online_il", "filtered_bc", "corrections", "none"],
-        default="online_il",
+        default=None,
         help="how the scripted reviewer teaches: label imagined states (online imitation), send its own plans "
         "(filtered BC), only correct, or none (with --language: the manual is all it gives)",
     )
     parser.add_argument(
         "--approve-return",
         type=float,
-        default=1.0,
+        default=None,
         help="the scripted reviewer approves at once a safe plan that imagines at least this return (a win with "
         "the message is +1.5; above it, the reviewer always teaches first)",
     )
@@ -362,7 +458,7 @@ def main(argv: list[str] | None = None) -> int:
         help="human-written description files the game draws its manuals from (default: the project's generator)",
     )
     parser.add_argument(
-        "--episodes", type=int, default=1, help="scripted: episodes (seeds SEED, SEED+1, ...) to review"
+        "--episodes", type=int, default=None, help="scripted: episodes (seeds SEED, SEED+1, ...) to review (default 1)"
     )
     parser.add_argument(
         "--language",
@@ -390,6 +486,14 @@ def main(argv: list[str] | None = None) -> int:
         "key file if missing) and the ledger records them by this name (default: 'terminal' at the terminal; "
         "the page asks)",
     )
+    parser.add_argument(
+        "--agents",
+        type=int,
+        default=1,
+        help="agents under review (2 or more: a fleet, agent1, agent2, ..., each with its environment, planner and "
+        "scripted reviewer in its own ROS namespace, all sharing one world-model server; they play the game from "
+        "seeds SEED, SEED+1, ..., and the first reviewer's language feedback goes to every agent)",
+    )
     human = parser.add_mutually_exclusive_group()
     human.add_argument("--scripted", action="store_true", help="the simulated human reviews; exits with a summary")
     human.add_argument("--no-human", action="store_true", help="start no human-feedback node")
@@ -411,8 +515,23 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(str(exc))
     ledger = Path(args.ledger) if args.ledger else args.log_dir / run_dirs.LEDGER_FILE
     state = Path(args.state) if args.state is not None else run_dirs.state_file(args.log_dir)
+    missing = [name for name in CONFIG_FILES.values() if not (args.config / name).is_file()]
+    if missing:
+        parser.error(f"--config {args.config}: no {', '.join(missing)} there (copy the package's config/ and edit it)")
+    if args.agents < 1:
+        parser.error(f"--agents must be 1 or more, not {args.agents}")
+    if args.agents > 1 and not (args.scripted or args.no_human):
+        parser.error(
+            "a fleet (--agents 2 or more) is reviewed by the scripted reviewer (--scripted) or from the command line "
+            "(--no-human and `lwm ros pub /agent1/review/feedback ...`); the page and the terminal review one agent"
+        )
+    ledgers = (
+        [ledger]
+        if args.agents == 1
+        else [args.log_dir / f"agent{i + 1}" / run_dirs.LEDGER_FILE for i in range(args.agents)]
+    )
     if args.resume is None and (args.only in ("", None) or "planner" in args.only or "world_model" in args.only):
-        earlier = run_dirs.earlier_run_files(ledger, state)
+        earlier = sorted({f for book in ledgers for f in run_dirs.earlier_run_files(book, state)})
         if earlier:
             parser.error(
                 f"{', '.join(map(str, earlier))} hold(s) an earlier run's reviews or manual; pass --resume "
@@ -428,13 +547,6 @@ def main(argv: list[str] | None = None) -> int:
         human = "none"
     else:
         human = "interactive"
-    planner = {k: str(v) for k, v in (("iterations", args.iterations), ("futures", args.futures)) if v is not None}
-    planner["constrained"] = "true" if args.constrained else "false"
-    planner["constrained_learning"] = "true" if args.constrained_learning else "false"
-    reviewer = {"teach": args.teach, "quiet": "false" if args.show_frames else "true", "episodes": str(args.episodes)}
-    reviewer["approve_return"] = str(args.approve_return)
-    if args.language:
-        reviewer.update({"language": "true", **({"texts": ",".join(args.texts)} if args.texts else {})})
     keys_file = args.keys_file if args.keys_file is not None else keys_default
     # A new file gets both reviewers; an existing one (perhaps shared across hosts) only gains the
     # one this launch's human node signs as.
@@ -452,31 +564,24 @@ def main(argv: list[str] | None = None) -> int:
     except (OSError, signing.SigningError) as exc:
         parser.error(str(exc))
     print(f"launcher: reviewer keys for {', '.join(sorted(keys))} in {keys_file}", flush=True)
-    nodes = default_nodes(
-        args.checkpoint,
-        args.split,
-        args.index,
-        args.seed,
-        args.policy,
-        str(ledger),
-        human,
-        str(state),
-        planner,
-        reviewer,
-        args.texts,
-        str(keys_file),
-        args.trusted,
-        args.page or 0,
-        person,
-    )
+    nodes = default_nodes(human, given_parameters(args, human, ledger, state, keys_file, person), args.config)
+    if args.agents > 1:
+        seed = args.seed if args.seed is not None else int(config_value(args.config, "env", "seed") or 0)
+        nodes = fleet(nodes, args.agents, seed, args.log_dir)
     if args.only:
         wanted = {name.strip() for name in args.only.split(",") if name.strip()}
         unknown = wanted - {"env", "world_model", "planner", "human"}
         if unknown:
             parser.error(f"--only: unknown nodes {', '.join(sorted(unknown))} (env, world_model, planner, human)")
-        nodes = [n for n in nodes if n.name in wanted]
+        nodes = [n for n in nodes if n.role in wanted]
     if args.record is not None:
-        recorder = NodeSpec("recorder", "lwm_nodes.recorder_node", {"path": str(args.record.resolve())}, first=True)
+        recorder = NodeSpec(
+            "recorder",
+            "lwm_nodes.recorder_node",
+            {"path": str(args.record.resolve())},
+            first=True,
+            config=args.config / CONFIG_FILES["recorder"],
+        )
         nodes.insert(0, recorder)
     echo = not args.quiet and human != "interactive"  # a person reads the human node's screen
     return supervise(nodes, args.log_dir, args.ready_timeout, args.max_restarts, echo, args.run_for)

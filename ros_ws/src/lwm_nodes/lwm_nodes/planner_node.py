@@ -63,7 +63,7 @@ class PlannerNode(JsonNode):
             risk_horizon=int(p("risk_horizon", ReviewConfig.risk_horizon).value),
             max_rereviews=int(p("max_rereviews", ReviewConfig.max_rereviews).value),
         )
-        imagine = self.create_client(Json, "/lwm/imagine")
+        imagine = self.create_client(Json, "lwm/imagine")
         # Plans and futures (what a person sees) imagined under the game's rules, or the model's raw
         # samples: with the rules the scripted reviews returned +1.05 against +0.85 (docs/benchmarks.md).
         constrained = bool(p("constrained", True).value)
@@ -71,26 +71,24 @@ class PlannerNode(JsonNode):
             json_caller(self, imagine, "imagine_response", call_timeout), constrained=constrained
         )
         ports = Ports(
-            publish_plan=self.json_publisher("/planner/plan", "plan", LATCHED),
-            publish_label_request=self.json_publisher("/planner/label_request", "label_request", LATCHED),
-            publish_report=self.json_publisher("/planner/report", "execution_report", LATCHED),
-            env_reset=self._env(
-                json_caller(self, self.create_client(Json, "/env/reset"), "env_response", call_timeout)
-            ),
-            env_step=self._env(json_caller(self, self.create_client(Json, "/env/step"), "env_response", call_timeout)),
+            publish_plan=self.json_publisher("planner/plan", "plan", LATCHED),
+            publish_label_request=self.json_publisher("planner/label_request", "label_request", LATCHED),
+            publish_report=self.json_publisher("planner/report", "execution_report", LATCHED),
+            env_reset=self._env(json_caller(self, self.create_client(Json, "env/reset"), "env_response", call_timeout)),
+            env_step=self._env(json_caller(self, self.create_client(Json, "env/step"), "env_response", call_timeout)),
             log=self.get_logger().info,
-            publish_progress=self.json_publisher("/planner/progress", "progress", LATCHED),
+            publish_progress=self.json_publisher("planner/progress", "progress", LATCHED),
         )
         # The text model loads now, not on the first uncached description of a language feedback.
         encoder = FrozenTextEncoder().load()
         self.loop = ReviewLoop(self.make_policy, encoder, self.imaginer, ports, Ledger(ledger), config)
-        self.json_subscription("/lwm/status", "status", self.loop.on_status, LATCHED)
-        self.json_subscription("/env/state", "state", self.loop.on_state, LATCHED)
-        on_feedback = verified(keyring, "review_feedback", "/review/feedback", self.loop.on_feedback)
-        self.json_subscription("/review/feedback", "review_feedback", on_feedback, FEEDBACK, acks=True)
-        on_labels = verified(keyring, "labels", "/review/labels", self.loop.on_labels)
-        self.json_subscription("/review/labels", "labels", on_labels, FEEDBACK, acks=True)
-        self.create_service(Json, "/planner/history", self.on_history)
+        self.json_subscription("lwm/status", "status", self.loop.on_status, LATCHED)
+        self.json_subscription("env/state", "state", self.loop.on_state, LATCHED)
+        on_feedback = verified(keyring, "review_feedback", "review/feedback", self.loop.on_feedback)
+        self.json_subscription("review/feedback", "review_feedback", on_feedback, FEEDBACK, acks=True)
+        on_labels = verified(keyring, "labels", "review/labels", self.loop.on_labels)
+        self.json_subscription("review/labels", "labels", on_labels, FEEDBACK, acks=True)
+        self.create_service(Json, "planner/history", self.on_history)
 
     def on_history(self, req, res):
         """The reviews in the ledger, or one review's records, read from a read-only connection of
@@ -98,7 +96,7 @@ class PlannerNode(JsonNode):
         try:
             asked = messages.parse("history_request", req.request)
         except messages.MessageError as exc:
-            self.report_error("/planner/history", exc, req.request)
+            self.report_error(self.resolve_service_name("planner/history"), exc, req.request)
             res.response = messages.dump("history_response", {"ok": False, "error": str(exc)})
             return res
         try:

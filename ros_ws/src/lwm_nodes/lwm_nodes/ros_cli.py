@@ -78,11 +78,19 @@ def cmd_graph(node: Node, what: str, settle: float) -> int:
 
 
 # Topics whose receiving node answers every message on /lwm/acks (taken, or refused and why).
+# Matched on the name's end: an agent of a fleet has them in its namespace (/agent2/review/labels).
 ACKED_TOPICS = {
-    "/review/feedback": "the planner",
-    "/review/labels": "the planner",
-    "/feedback/manual": "the world-model server",
+    "review/feedback": "the planner",
+    "review/labels": "the planner",
+    "feedback/manual": "the world-model server",
 }
+
+
+def answered_by(topic: str) -> str | None:
+    """Which node answers a message on this fully qualified topic, if any."""
+    return next((who for end, who in ACKED_TOPICS.items() if topic == f"/{end}" or topic.endswith(f"/{end}")), None)
+
+
 NO_ANSWER = 3  # exit status when no node answered in time (1: refused, 2: bad usage or input)
 
 
@@ -97,9 +105,10 @@ def cmd_pub(node: Node, args) -> int:
     from lwm_nodes.common import ACKS, ACKS_TOPIC, EVENTS, LATCHED
 
     text = _payload(args.payload, args.raw)
-    answered_by = ACKED_TOPICS.get(args.topic) if args.ack_timeout > 0 else None
+    args.topic = node.resolve_topic_name(args.topic)
+    answerer = answered_by(args.topic) if args.ack_timeout > 0 else None
     msg_id = None
-    if answered_by and not args.raw:
+    if answerer and not args.raw:
         payload = json.loads(text)
         if isinstance(payload, dict):
             msg_id = payload.setdefault("msg_id", f"cli-{uuid.uuid4().hex[:12]}")
@@ -110,7 +119,7 @@ def cmd_pub(node: Node, args) -> int:
         messages.parse(args.kind, text)
     answers: list[dict] = []
     got = threading.Event()
-    if answered_by:
+    if answerer:
 
         def on_ack(msg: String) -> None:
             ack = json.loads(msg.data)
@@ -131,11 +140,11 @@ def cmd_pub(node: Node, args) -> int:
     # Reliable delivery needs the publisher alive until every reader has acknowledged the sample.
     pub.wait_for_all_acked(Duration(seconds=max(args.wait, 0.5)))
     print(f"published to {args.topic} ({pub.get_subscription_count()} subscriber(s))")
-    if not answered_by:
+    if not answerer:
         return 0
     if not got.wait(args.ack_timeout):
         print(
-            f"lwm ros: no answer from {answered_by} in {args.ack_timeout:.0f} s: it may not be running, or it is "
+            f"lwm ros: no answer from {answerer} in {args.ack_timeout:.0f} s: it may not be running, or it is "
             f"busy (the message may still be taken; see /lwm/acks)",
             file=sys.stderr,
         )

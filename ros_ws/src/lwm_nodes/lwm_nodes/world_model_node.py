@@ -1,12 +1,21 @@
-"""World-model server node: the one owner of the world model, serving /lwm/imagine.
+"""World-model server node: the one owner of the world model, serving lwm/imagine.
 
-It holds the model, the current manual and its version (lwm_models.world.model_server.WorldModelServer).
-/feedback/manual is the one way to change the manual (each change a new version); the
-environment's manual (/env/manual) is the default for each new game. /lwm/status (latched) says
-which manual version is current, so the planner re-plans when it changes. The manual and its
-version survive a restart (parameter `state`).
+It holds the model and, for each agent it serves, the current manual and its version
+(lwm_models.world.model_server.WorldModelServer). Names are relative: with the default `agents`
+(one unnamed agent) the node serves lwm/imagine, lwm/status, feedback/manual and follows
+env/manual in its own namespace, as the single-agent system always did. With `agents` naming a
+fleet (e.g. [agent1, agent2], the agents' namespaces), it serves each agent under its name:
+AGENT/lwm/imagine (imagined under that agent's manual), AGENT/lwm/status, AGENT/feedback/manual
+(a manual for that agent alone), and follows AGENT/env/manual; feedback/manual, in the node's own
+namespace, gives every agent the same manual: one change to the shared world model re-plans the
+whole fleet. All agents' calls share the model's batches.
 
-Concurrent /lwm/imagine calls are served by a pool of executor threads; one-shot calls share the
+A manual from a person counts only if a reviewer the node trusts signed it. The environment's
+manual is each agent's default for each new game. Each agent's status (latched) says which manual
+version is current, so its planner re-plans when it changes. Manuals and versions survive a
+restart (parameter `state`).
+
+Concurrent lwm/imagine calls are served by a pool of executor threads; one-shot calls share the
 model's steps (continuous batching, lwm_models.world.imagine_server) in a worker process of the node's
 own, so that stepping the model does not compete for this process's GIL with the threads that
 receive and answer calls. SERVICE_THREADS bounds how many calls wait at once.
@@ -25,60 +34,98 @@ from lwm_nodes.trust import declare_keyring, verified
 SERVICE_THREADS = 16  # executor threads of the node: calls that can wait for a batch at once
 
 
+def agent_topic(agent: str, name: str) -> str:
+    """An agent's topic or service, relative to the server's namespace."""
+    return f"{agent}/{name}" if agent else name
+
+
 class SimulatorNode(JsonNode):
     def __init__(self) -> None:
         super().__init__("lwm_world_model")
         checkpoint = self.declare_parameter("checkpoint", "").value
         threads = self.declare_threads()
-        state = self.declare_parameter("state", "").value  # JSON file keeping manual and version
+        state = self.declare_parameter("state", "").value  # JSON file keeping manuals and versions
         self.follow_env = self.declare_parameter("follow_env_manual", True).value
         max_sessions = int(self.declare_parameter("max_sessions", 32).value)
-        self.sim = WorldModelServer(checkpoint or None, state_path=state or None, max_sessions=max_sessions)
+        agents = [a.strip("/") for a in self.declare_parameter("agents", [""]).value] or [""]
+        self.sim = WorldModelServer(
+            checkpoint or None, state_path=state or None, max_sessions=max_sessions, agents=agents
+        )
         if self.sim.encoder is not None:
             # A new manual's first uncached text would otherwise load the text model (about 4 s
             # of a language feedback's time to the revised plan, measured).
             self.sim.encoder.load()
-        self.publish_status = self.json_publisher("/lwm/status", "status", LATCHED)
-        # A manual from a person counts only if a reviewer it trusts signed it (keys_file, trusted).
-        on_feedback = verified(declare_keyring(self), "manual", "/feedback/manual", self.on_feedback)
-        self.json_subscription("/feedback/manual", "manual", on_feedback, LATCHED, acks=True)
-        self.json_subscription("/env/manual", "manual", self.on_env_manual, LATCHED)
         max_rows = int(self.declare_parameter("max_batch_trajectories", 256).value)
         workers = int(self.declare_parameter("imagine_workers", 1).value)  # processes imagining one-shot calls
         self.server = WorkerImagineServer(self.sim, max_rows, threads, workers)
-        self.create_service(Json, "/lwm/imagine", self.on_imagine, callback_group=ReentrantCallbackGroup())
-        self.publish_status(self.sim.status())
-        self.get_logger().info(
-            f"model {self.sim.model_name} from {self.sim.checkpoint}; manual v{self.sim.manual_version}"
-        )
+        keyring = declare_keyring(self)
+        self.publishers = {}
+        for agent in agents:
+            status = agent_topic(agent, "lwm/status")
+            self.publishers[agent] = self.json_publisher(status, "status", LATCHED)
+            if agent:  # one unnamed agent's own manual topic is the fleet's, below
+                topic = agent_topic(agent, "feedback/manual")
+                to_agent = verified(keyring, "manual", topic, lambda p, a=agent: self.on_feedback(p, a))
+                self.json_subscription(topic, "manual", to_agent, LATCHED, acks=True)
+            self.json_subscription(
+                agent_topic(agent, "env/manual"), "manual", lambda p, a=agent: self.on_env_manual(p, a), LATCHED
+            )
+            self.create_service(
+                Json,
+                agent_topic(agent, "lwm/imagine"),
+                lambda req, res, a=agent: self.on_imagine(req, res, a),
+                callback_group=ReentrantCallbackGroup(),
+            )
+            self.publishers[agent](self.sim.status(agent))
+        # A manual from a person counts only if a reviewer it trusts signed it (keys_file, trusted).
+        to_all = verified(keyring, "manual", "feedback/manual", lambda p: self.on_feedback(p, None))
+        self.json_subscription("feedback/manual", "manual", to_all, LATCHED, acks=True)
+        served = ", ".join(agents) if agents != [""] else "one agent"
+        model = f"model {self.sim.model_name} from {self.sim.checkpoint}"
+        self.get_logger().info(f"{model}; serving {served}; manual v{self.sim.manual_version}")
 
-    def on_feedback(self, payload: dict) -> str:
-        version, changed = self.sim.set_manual(payload["descriptions"], payload.get("source", "human"))
+    def on_feedback(self, payload: dict, agent: str | None) -> str:
+        """A person's manual, for one agent or (agent None) for every agent the server serves."""
+        source = payload.get("source", "human")
+        if agent is None:
+            outcome = self.sim.set_fleet_manual(payload["descriptions"], source)
+        else:
+            outcome = {agent: self.sim.set_manual(payload["descriptions"], source, agent)}
+        changed = [a for a, (_, fresh) in outcome.items() if fresh]
         if not changed:
-            return f"the same manual as version {version}: nothing changes"
-        self.get_logger().info(f"manual version {version} from {payload.get('source', 'human')}")
-        self.publish_status(self.sim.status())
-        said = f"manual version {version} taken: the world model reads it and the agent re-plans"
-        note = self.sim.ungrounded()
+            versions = sorted({v for v, _ in outcome.values()})
+            return f"the same manual as version {', '.join(map(str, versions))}: nothing changes"
+        for a in changed:
+            self.get_logger().info(f"manual version {outcome[a][0]}{' of ' + a if a else ''} from {source}")
+            self.publishers[a](self.sim.status(a))
+        if changed == [""]:
+            said = f"manual version {outcome[''][0]} taken: the world model reads it and the agent re-plans"
+        else:
+            whom = ", ".join(f"{a} (v{outcome[a][0]})" for a in changed)
+            said = f"manual taken for {whom}: the world model reads it and each of them re-plans"
+        note = self.sim.ungrounded(changed[0])
         if note is not None:
             said += f"; but {note}"
         return said
 
-    def on_env_manual(self, payload: dict) -> None:
+    def on_env_manual(self, payload: dict, agent: str) -> None:
         if not self.follow_env:
             return
-        version, changed = self.sim.take_env_manual(payload["descriptions"], payload.get("episode_id", ""))
+        version, changed = self.sim.take_env_manual(payload["descriptions"], payload.get("episode_id", ""), agent)
         if changed:
-            self.get_logger().info(f"manual version {version} from the environment ({self.sim.game})")
-            self.publish_status(self.sim.status())
+            game = self.sim.state(agent).game
+            self.get_logger().info(
+                f"manual version {version}{' of ' + agent if agent else ''} from the environment ({game})"
+            )
+            self.publishers[agent](self.sim.status(agent))
 
     def close(self) -> None:
         self.server.close()
 
-    def on_imagine(self, req, res):
-        res.response, error = self.server.serve(req.request)
+    def on_imagine(self, req, res, agent: str):
+        res.response, error = self.server.serve(req.request, agent)
         if error is not None:
-            self.report_error("/lwm/imagine", error, req.request)
+            self.report_error(self.resolve_service_name(agent_topic(agent, "lwm/imagine")), error, req.request)
         return res
 
 
