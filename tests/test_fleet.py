@@ -186,6 +186,14 @@ def test_two_agents_share_one_world_model_server_and_one_manual_replans_both(tmp
                 book.close()
 
         assert _wait(lambda: plans(1) and plans(2), 240), "each agent plans under its environment's manual"
+        # Every node reports its health on /diagnostics; the server, its batches and each manual.
+        report = _ros(env, "diagnostics", "--seconds", "3", "--json")
+        assert report.returncode == 0, report.stderr
+        health = {h["node"]: h for h in map(json.loads, report.stdout.splitlines())}
+        assert {"/agent1/planner", "/agent2/planner", "/agent2/messenger_env", "/lwm_world_model"} <= set(health)
+        server = health["/lwm_world_model"]
+        assert server["level"] == "OK" and int(server["calls"]) > 0 and float(server["latency p99 ms"]) > 0
+        assert "manual version of agent2" in server and "phase" in health["/agent1/planner"]
         first = [_latched(env, f"/agent{i}/lwm/status") for i in (1, 2)]
         assert [s["agent"] for s in first] == ["agent1", "agent2"] and all(s["manual_source"] == "env" for s in first)
 

@@ -13,23 +13,30 @@ import pytest
 import yaml
 
 NODES = Path(__file__).resolve().parents[1] / "ros_ws" / "src" / "lwm_nodes"
-# The modules whose declarations make up each node's parameters; `helpers` are functions of
-# lwm_nodes that declare parameters for the nodes that call them.
+# The modules whose declarations make up each node's parameters; HELPERS are functions (and a
+# class, and JsonNode's __init__) of lwm_nodes that declare parameters for the nodes that call them.
 CONFIGS = {
-    "messenger_env.yaml": ["env_node"],
-    "lwm_world_model.yaml": ["world_model_node", "declare_threads", "declare_keyring", "_keys_file"],
-    "planner.yaml": ["planner_node", "declare_threads", "declare_keyring", "_keys_file"],
+    "messenger_env.yaml": ["env_node", "__init__"],
+    "lwm_world_model.yaml": ["world_model_node", "__init__", "declare_threads", "declare_keyring", "_keys_file"],
+    "planner.yaml": ["planner_node", "__init__", "declare_threads", "declare_keyring", "_keys_file"],
     "human_feedback.yaml": [
         "human_node",
+        "__init__",
         "scripted_reviewer",
         "page_reviewer",
         "terminal_reviewer",
         "Signer",
         "_keys_file",
     ],
-    "lwm_recorder.yaml": ["recorder_node"],
+    "lwm_recorder.yaml": ["recorder_node", "__init__"],
 }
-HELPERS = {"declare_threads": "common", "declare_keyring": "trust", "Signer": "trust", "_keys_file": "trust"}
+HELPERS = {
+    "__init__": "common",  # JsonNode's: every node's
+    "declare_threads": "common",
+    "declare_keyring": "trust",
+    "Signer": "trust",
+    "_keys_file": "trust",
+}
 
 
 def declared(part: str) -> dict[str, object]:

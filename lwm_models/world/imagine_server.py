@@ -28,11 +28,15 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from multiprocessing.connection import Connection
 
+import numpy as np
+
 from ..errors import LwmError
 from .continuous import MAX_ROWS, ContinuousBatch, OneShot
 from .imagine import Imagination
 from .imagine_worker import STOP, await_ready, launch_worker, shot_message
 from .model_server import WorldModelServer, serve_json
+
+RECENT = 1000  # calls the server's load figures (latency, batch) are taken over
 
 
 class ShuttingDown(LwmError):
@@ -64,6 +68,8 @@ class ImagineServer:
         self.sim = sim
         self.batch = ContinuousBatch(sim.model, max_trajectories)
         self.requests = 0  # one-shot requests answered: for status and benchmarks
+        self.calls = 0  # answered, of every kind (session calls too)
+        self.recent: deque[tuple[float, int]] = deque(maxlen=RECENT)  # (seconds, batch peak; 0: a session call)
         self.submitted = 0  # one-shot requests handed to the batch (tests wait on it, not on time)
         self._queue: queue.SimpleQueue[_Job | None] = queue.SimpleQueue()
         self._closed = threading.Event()
@@ -78,8 +84,10 @@ class ImagineServer:
 
     def handle(self, request: dict) -> dict:
         """The response to a valid request: one-shot requests wait for their batch."""
-        if not self.sim.is_one_shot(request):
-            return self.sim.handle(request)
+        if not self.sim.is_one_shot(request):  # a session's open, step or close
+            answer = self.sim.handle(request)
+            self._record(answer["seconds"], 0)
+            return answer
         if self._closed.is_set():
             raise ShuttingDown("the world-model server is shutting down")
         began = time.perf_counter()
@@ -89,7 +97,28 @@ class ImagineServer:
                 raise ShuttingDown("the world-model server is shutting down")
         if job.error is not None:
             raise job.error
-        return {**self._response(job), "seconds": round(time.perf_counter() - began, 4)}
+        answer = {**self._response(job), "seconds": round(time.perf_counter() - began, 4)}
+        self._record(answer["seconds"], int(answer.get("batched", 1)))
+        return answer
+
+    def load(self) -> dict[str, float | int]:
+        """Calls answered (all, and one-shot), and over the last RECENT calls: latency's median and
+        99th percentile in ms, and the mean batch (trajectories stepped together) one-shot calls
+        peaked at. Session calls (open, step, close) are served one at a time."""
+        recent = list(self.recent)
+        out: dict[str, float | int] = {"calls": self.calls, "one-shot calls": self.requests}
+        if recent:
+            ms = np.array([r[0] for r in recent]) * 1000
+            out["latency p50 ms"] = round(float(np.percentile(ms, 50)), 1)
+            out["latency p99 ms"] = round(float(np.percentile(ms, 99)), 1)
+        batches = [r[1] for r in recent if r[1] > 0]
+        if batches:
+            out["mean batch"] = round(float(np.mean(batches)), 1)
+        return out
+
+    def _record(self, seconds: float, batch: int) -> None:
+        self.calls += 1
+        self.recent.append((seconds, batch))
 
     def _submit(self, request: dict) -> tuple[_Job, threading.Thread]:
         """Queue a one-shot request; returns its job and the thread that will finish it."""
@@ -282,6 +311,8 @@ class WorkerImagineServer(ImagineServer):
             raise ValueError(f"workers must be >= 1, got {workers}")
         self.sim = sim
         self.requests = 0
+        self.calls = 0
+        self.recent: deque[tuple[float, int]] = deque(maxlen=RECENT)
         self._closed = threading.Event()
         self._ids = itertools.count()
         self._pick = threading.Lock()

@@ -61,13 +61,54 @@ def ros_environment() -> None:
         os.environ.setdefault("FASTRTPS_DEFAULT_PROFILES_FILE", str(FASTDDS_PROFILE))
 
 
+DIAGNOSTICS_TOPIC = "/diagnostics"  # ROS's own convention: absolute, one for the whole system
+RECENT_ERROR_S = 30.0  # a node reports WARN for this long after an error it reported
+
+
 class JsonNode(Node):
-    """A node that speaks validated JSON on std_msgs/String and reports bad input on /lwm/errors."""
+    """A node that speaks validated JSON on std_msgs/String, reports bad input on /lwm/errors and
+    its health on /diagnostics (diagnostic_msgs/DiagnosticArray, every `diagnostics_period` s)."""
 
     def __init__(self, name: str) -> None:
         super().__init__(name)
         self._errors = self.create_publisher(String, ERRORS_TOPIC, EVENTS)
         self._acks = None  # created by the first subscription that answers its senders
+        self.error_count = 0
+        self._last_error: tuple[float, str] | None = None  # (monotonic time, what)
+        period = float(self.declare_parameter("diagnostics_period", 1.0).value)
+        if period > 0:
+            from diagnostic_msgs.msg import DiagnosticArray
+
+            self._diagnostics = self.create_publisher(DiagnosticArray, DIAGNOSTICS_TOPIC, EVENTS)
+            self.create_timer(period, self.publish_diagnostics)
+
+    def health(self) -> tuple[str, dict[str, object]]:
+        """What the node says of itself on /diagnostics: a one-line message and named values.
+        Nodes add their own (queue lengths, batch sizes, the review's phase)."""
+        return "serving", {}
+
+    def publish_diagnostics(self) -> None:
+        from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+
+        try:
+            message, values = self.health()
+            level = DiagnosticStatus.OK
+        except Exception as exc:  # the report must not take the node down either
+            message, values, level = f"health unknown: {exc}", {}, DiagnosticStatus.ERROR
+        values = {**values, "errors reported": self.error_count}
+        if self._last_error is not None and time.monotonic() - self._last_error[0] < RECENT_ERROR_S:
+            level = max(level, DiagnosticStatus.WARN)
+            message = f"{message}; last error: {self._last_error[1]}"
+        status = DiagnosticStatus(
+            level=level,
+            name=self.get_fully_qualified_name(),
+            message=message[:500],
+            hardware_id=os.uname().nodename,
+            values=[KeyValue(key=k, value=str(v)) for k, v in values.items()],
+        )
+        array = DiagnosticArray(status=[status])
+        array.header.stamp = self.get_clock().now().to_msg()
+        self._diagnostics.publish(array)
 
     def close(self) -> None:
         """Called on SIGINT/SIGTERM before the executor shuts down: a node whose callbacks may be
@@ -127,6 +168,8 @@ class JsonNode(Node):
     def report_error(self, where: str, exc: Exception, payload: str = "") -> None:
         text = f"{type(exc).__name__}: {exc}" if not isinstance(exc, messages.MessageError) else str(exc)
         self.get_logger().error(f"{where}: {text}")
+        self.error_count += 1
+        self._last_error = (time.monotonic(), f"{where}: {text}"[:200])
         self._errors.publish(
             String(
                 data=messages.dump(

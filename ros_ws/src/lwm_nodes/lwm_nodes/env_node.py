@@ -36,6 +36,11 @@ class EnvNode(JsonNode):
         self._announce(self.session.reset(seed))
         self.get_logger().info(f"serving {split}[{index}]: {self.session.env.spec}")
 
+    def health(self) -> tuple[str, dict[str, object]]:
+        state = self.session.state()
+        where = f"{state['episode_id']} at step {state['t']}" + (" (over)" if state.get("done") else "")
+        return f"playing {where}", {"episode": state["episode_id"], "step": state["t"]}
+
     def _announce(self, state: dict) -> None:
         self.publish_state(state)
         self.publish_manual(self.session.manual())

@@ -212,6 +212,22 @@ class HumanNode(JsonNode):
             raise LwmError(answer["error"])
         return answer
 
+    def health(self) -> tuple[str, dict[str, object]]:
+        with self.sent_lock:
+            waiting = sum(entry["ack"] is None for entry in self.sent.values())
+        plan = self.plan
+        values = {
+            "reviewer": self.signer.reviewer or "nobody yet",
+            "episode": self.episode or "none yet",
+            "label request open": self.request is not None,
+            "answers awaited": waiting,
+        }
+        if plan is None:
+            return "waiting for a plan", values
+        values["plan"] = f"{plan['review_id']} plan {plan['plan_id']}"
+        doing = f"the agent plays review {self.executing}" if self.executing else f"plan {plan['plan_id']} shown"
+        return doing, values
+
     # ------------------------------------------------------------------ what this node hears
     def on_state(self, payload: dict) -> None:
         self.episode = payload["episode_id"]

@@ -114,6 +114,16 @@ class PlannerNode(JsonNode):
         res.response = messages.dump("history_response", answer)
         return res
 
+    def health(self) -> tuple[str, dict[str, object]]:
+        loop = self.loop
+        values: dict[str, object] = {"manual version": loop.manual_version, "jobs queued": loop.jobs.qsize()}
+        r = loop.review
+        if r is None:
+            return "waiting for an episode to review", values
+        values.update({"review": r.review_id, "phase": r.phase, "plans": r.plans, "revisions": r.revisions})
+        values["label request open"] = r.request is not None
+        return f"review {r.review_id}: {r.phase}", values
+
     def make_policy(self) -> EmmaPolicy:
         if self.policy_dir:
             return load_policy(self.policy_dir)

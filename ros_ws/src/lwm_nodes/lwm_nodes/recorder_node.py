@@ -53,6 +53,10 @@ class RecorderNode(JsonNode):
             )
             self.get_logger().info(f"recording {topic} ({'latched' if latched else 'volatile'})")
 
+    def health(self) -> tuple[str, dict[str, object]]:
+        written = sum(self.recorder.counts.values())
+        return f"recording {len(self.subscriptions_by_topic)} topics to {self.recorder.path}", {"messages": written}
+
     def on_message(self, topic: str, data: bytes) -> None:
         self.recorder.write(topic, data, self.get_clock().now().nanoseconds)
 

@@ -8,6 +8,7 @@
     lwm ros keys [--keys-file FILE] [--reviewer ID ...]
     lwm ros record FILE [--duration S]
     lwm ros play FILE [--rate R] [--topics T ...] [--wait S]
+    lwm ros diagnostics [--seconds S] [--json]   (each node's health, from /diagnostics)
 
 Discovery stays on this machine unless ROS_AUTOMATIC_DISCOVERY_RANGE says otherwise.
 
@@ -157,6 +158,41 @@ def cmd_pub(node: Node, args) -> int:
     return 1
 
 
+LEVELS = {0: "OK", 1: "WARN", 2: "ERROR", 3: "STALE"}
+
+
+def cmd_diagnostics(node: Node, args) -> int:
+    """Listen to /diagnostics for --seconds and print each node's latest status; exit 1 when a
+    node reports an error, 3 when none reported."""
+    from diagnostic_msgs.msg import DiagnosticArray
+
+    from lwm_nodes.common import DIAGNOSTICS_TOPIC, EVENTS
+
+    latest: dict[str, dict] = {}
+
+    def on_array(msg: DiagnosticArray) -> None:
+        for st in msg.status:
+            level = int.from_bytes(st.level, "little") if isinstance(st.level, bytes) else int(st.level)
+            values = {kv.key: kv.value for kv in st.values}
+            latest[st.name] = {"node": st.name, "level": LEVELS.get(level, str(level)), "message": st.message, **values}
+
+    node.create_subscription(DiagnosticArray, DIAGNOSTICS_TOPIC, on_array, EVENTS)
+    time.sleep(args.seconds)
+    found = [latest[name] for name in sorted(latest)]
+    if not found:
+        print(f"lwm ros: no node reported on {DIAGNOSTICS_TOPIC} in {args.seconds:.0f} s", file=sys.stderr)
+        return NO_ANSWER
+    for status in found:
+        if args.json:
+            print(json.dumps(status))
+            continue
+        print(f"{status['level']:5} {status['node']}: {status['message']}")
+        for key, value in status.items():
+            if key not in ("node", "level", "message"):
+                print(f"        {key}: {value}")
+    return 1 if any(s["level"] == "ERROR" for s in found) else 0
+
+
 def _signed(args, text: str) -> str:
     """The payload signed as reviewer args.sign with its key from the key file (the version filled
     in first, since the signature covers it). With --raw it is signed but not validated, to show
@@ -280,7 +316,7 @@ def cmd_record(args) -> int:
     return run_node(lambda: RecorderNode(str(args.file)), stop)
 
 
-HELP = "ROS 2 graph tools: nodes, topics, services, pub, echo, call, keys, record, play"
+HELP = "ROS 2 graph tools: nodes, topics, services, pub, echo, call, keys, record, play, diagnostics"
 DESCRIPTION = "ROS 2 graph tools for the LWM system"
 
 
@@ -354,6 +390,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     s.add_argument("--topics", nargs="+", default=None, help="play only these topics (default: all)")
     s.add_argument("--wait", type=float, default=1.0, help="seconds to let subscribers match, before and after")
 
+    s = sub.add_parser("diagnostics", help="each node's latest report on /diagnostics")
+    s.add_argument("--seconds", type=float, default=3.0, help="how long to listen (the nodes report every second)")
+    s.add_argument("--json", action="store_true", help="one JSON object per node instead of the table")
+
 
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="lwm ros", description=DESCRIPTION)
@@ -406,7 +446,14 @@ def run(args: argparse.Namespace) -> int:
     try:
         if args.cmd in ("nodes", "topics", "services"):
             return cmd_graph(node, args.cmd, args.settle)
-        return {"pub": cmd_pub, "echo": cmd_echo, "call": cmd_call, "play": cmd_play}[args.cmd](node, args)
+        commands = {
+            "pub": cmd_pub,
+            "echo": cmd_echo,
+            "call": cmd_call,
+            "play": cmd_play,
+            "diagnostics": cmd_diagnostics,
+        }
+        return commands[args.cmd](node, args)
     except (OSError, ValueError, messages.MessageError, signing.SigningError, LwmError) as exc:
         print(f"lwm ros: error: {exc}", file=sys.stderr)
         return 2

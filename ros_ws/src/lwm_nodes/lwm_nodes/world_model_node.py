@@ -59,10 +59,10 @@ class SimulatorNode(JsonNode):
         workers = int(self.declare_parameter("imagine_workers", 1).value)  # processes imagining one-shot calls
         self.server = WorkerImagineServer(self.sim, max_rows, threads, workers)
         keyring = declare_keyring(self)
-        self.publishers = {}
+        self.status_publishers = {}
         for agent in agents:
             status = agent_topic(agent, "lwm/status")
-            self.publishers[agent] = self.json_publisher(status, "status", LATCHED)
+            self.status_publishers[agent] = self.json_publisher(status, "status", LATCHED)
             if agent:  # one unnamed agent's own manual topic is the fleet's, below
                 topic = agent_topic(agent, "feedback/manual")
                 to_agent = verified(keyring, "manual", topic, lambda p, a=agent: self.on_feedback(p, a))
@@ -76,7 +76,7 @@ class SimulatorNode(JsonNode):
                 lambda req, res, a=agent: self.on_imagine(req, res, a),
                 callback_group=ReentrantCallbackGroup(),
             )
-            self.publishers[agent](self.sim.status(agent))
+            self.status_publishers[agent](self.sim.status(agent))
         # A manual from a person counts only if a reviewer it trusts signed it (keys_file, trusted).
         to_all = verified(keyring, "manual", "feedback/manual", lambda p: self.on_feedback(p, None))
         self.json_subscription("feedback/manual", "manual", to_all, LATCHED, acks=True)
@@ -97,7 +97,7 @@ class SimulatorNode(JsonNode):
             return f"the same manual as version {', '.join(map(str, versions))}: nothing changes"
         for a in changed:
             self.get_logger().info(f"manual version {outcome[a][0]}{' of ' + a if a else ''} from {source}")
-            self.publishers[a](self.sim.status(a))
+            self.status_publishers[a](self.sim.status(a))
         if changed == [""]:
             said = f"manual version {outcome[''][0]} taken: the world model reads it and the agent re-plans"
         else:
@@ -117,7 +117,15 @@ class SimulatorNode(JsonNode):
             self.get_logger().info(
                 f"manual version {version}{' of ' + agent if agent else ''} from the environment ({game})"
             )
-            self.publishers[agent](self.sim.status(agent))
+            self.status_publishers[agent](self.sim.status(agent))
+
+    def health(self) -> tuple[str, dict[str, object]]:
+        load = self.server.load()
+        versions = {f"manual version{' of ' + a if a else ''}": self.sim.state(a).version for a in self.sim.agents}
+        served = f"{len(self.sim.agents)} agents" if len(self.sim.agents) > 1 else "one agent"
+        values = {**load, "sessions open": len(self.sim.sessions), **versions}
+        values["worker restarts"] = self.server.restarts
+        return f"serving {served}; {load['calls']} imagine calls answered", values
 
     def close(self) -> None:
         self.server.close()
