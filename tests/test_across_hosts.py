@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
 import signal
 import subprocess
 import sys
@@ -20,61 +19,20 @@ from pathlib import Path
 
 import pytest
 from game_fixtures import MANUAL
-from lwm_nodes import domains
+from lwm_nodes import domains, netns
 
 ROOT = Path(__file__).resolve().parent.parent
 PYTHON = sys.executable
 
 
-def ip(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run(["ip", *args], capture_output=True, text=True)
-
-
-def namespaces_unavailable() -> str | None:
-    if shutil.which("ip") is None:
-        return "the ip command (iproute2) is not installed"
-    if os.geteuid() != 0:
-        return "creating network namespaces needs root"
-    probe = f"lwmprobe{os.getpid() % 100000}"
-    made = ip("netns", "add", probe)
-    if made.returncode != 0:
-        return f"ip netns add failed: {made.stderr.strip()}"
-    ip("netns", "del", probe)
-    return None
-
-
-REASON = namespaces_unavailable()
+REASON = netns.unavailable()
 pytestmark = pytest.mark.skipif(REASON is not None, reason=f"no network namespaces here: {REASON}")
 
 
 @pytest.fixture
 def two_hosts():
-    """Namespaces A (10.77.N.1) and B (10.77.N.2) on one veth pair, multicast routed on it."""
-    n = os.getpid() % 200 + 1
-    a, b, va, vb = f"lwmA{n}", f"lwmB{n}", f"lwva{n}", f"lwvb{n}"
-    steps = [
-        ("netns", "add", a),
-        ("netns", "add", b),
-        ("link", "add", va, "type", "veth", "peer", "name", vb),
-        ("link", "set", va, "netns", a),
-        ("link", "set", vb, "netns", b),
-    ]
-    for ns, dev, addr in ((a, va, f"10.77.{n}.1/24"), (b, vb, f"10.77.{n}.2/24")):
-        steps += [
-            ("-n", ns, "addr", "add", addr, "dev", dev),
-            ("-n", ns, "link", "set", dev, "multicast", "on"),
-            ("-n", ns, "link", "set", dev, "up"),
-            ("-n", ns, "link", "set", "lo", "up"),
-            ("-n", ns, "route", "add", "224.0.0.0/4", "dev", dev),
-        ]
-    try:
-        for step in steps:
-            done = ip(*step)
-            assert done.returncode == 0, f"ip {' '.join(step)}: {done.stderr}"
-        yield a, b
-    finally:
-        ip("netns", "del", a)
-        ip("netns", "del", b)
+    with netns.two_hosts() as hosts:
+        yield hosts
 
 
 def launch(ns: str, env: dict, *args: str) -> subprocess.Popen:
@@ -93,8 +51,7 @@ def test_the_review_loop_completes_across_two_hosts(two_hosts, tmp_path):
     env = {
         **os.environ,
         "ROS_DOMAIN_ID": str(domains.claim()),
-        "ROS_AUTOMATIC_DISCOVERY_RANGE": "SUBNET",
-        "FASTDDS_BUILTIN_TRANSPORTS": "UDPv4",
+        **netns.HOST_ENV,
         "PYTHONUNBUFFERED": "1",
     }
     keys = tmp_path / "reviewer_keys.json"  # copied to every host in real life; here one file

@@ -236,7 +236,8 @@ def test_the_ros_entry_point_registers_lwm_ros_without_importing_rclpy():
 
 
 def _setup_entry_points() -> dict[str, list[str]]:
-    (call,) = [n for n in ast.walk(ast.parse(SETUP_PY.read_text())) if isinstance(n, ast.Call)]
+    tree = ast.parse(SETUP_PY.read_text())
+    (call,) = [n for n in ast.walk(tree) if isinstance(n, ast.Call) and getattr(n.func, "id", "") == "setup"]
     (points,) = [k.value for k in call.keywords if k.arg == "entry_points"]
     return ast.literal_eval(points)
 

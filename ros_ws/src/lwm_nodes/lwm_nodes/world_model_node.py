@@ -23,6 +23,8 @@ receive and answer calls. SERVICE_THREADS bounds how many calls wait at once.
 
 from __future__ import annotations
 
+import json
+
 from lwm_interfaces.srv import Json
 from rclpy.callback_groups import ReentrantCallbackGroup
 
@@ -128,6 +130,8 @@ class SimulatorNode(JsonNode):
         return f"serving {served}; {load['calls']} imagine calls answered", values
 
     def close(self) -> None:
+        # The load over the run's last calls, for benchmarks/fleet.py and whoever reads the log.
+        self.get_logger().info(f"imagine load: {json.dumps(self.server.load())}")
         self.server.close()
 
     def on_imagine(self, req, res, agent: str):

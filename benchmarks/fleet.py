@@ -1,0 +1,171 @@
+"""A fleet under review on one world-model server (issue 34): 1, 4 and 8 agents.
+
+For each fleet size N, the launcher starts one world-model server and N agents (`--agents N`), each
+with its environment, planner and scripted reviewer in its own namespace, playing the same NewAll
+test game from seeds SEED, SEED+1, ...; agent1's reviewer first gives language feedback to every
+agent (the true manual in other words, on /feedback/manual), and each reviewer then reviews its
+agent's plans to the execution's report. With --server-host, the world-model server runs in one
+network namespace and the agents in another (two simulated hosts, traffic over a veth pair: needs
+root).
+
+Prints and records, per fleet size: real return per agent (mean and each), reviews per minute
+(reports over the time from the first plan to the last report), the agents that re-planned under
+the fleet's manual, the world-model server's calls with their latency (p50, p99) and the mean batch
+of its one-shot calls (its load report at shutdown), and the wall time.
+
+    flock /tmp/lwm-heavy.lock .venv/bin/python benchmarks/fleet.py --agents 1 4 8 --out results/fleet/fleet.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import re
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from imagination import git_commit  # noqa: E402  (benchmarks/ is on sys.path when run as a script)
+from lwm_nodes import domains, netns  # noqa: E402
+
+from lwm_models.ledger import Ledger  # noqa: E402
+from lwm_models.run_dirs import LEDGER_FILE  # noqa: E402
+
+LOAD = re.compile(r"imagine load: (\{.*\})")
+
+
+def launcher(*args: str) -> list[str]:
+    return [sys.executable, "-m", "lwm_nodes.launcher", "--quiet", "--max-restarts", "0", *args]
+
+
+def run_fleet(n: int, args, work: Path) -> dict:
+    logs = work / f"agents{n}"
+    common = ["--index", str(args.index), "--seed", str(args.seed), "--iterations", str(args.iterations)]
+    common += ["--futures", str(args.futures), "--agents", str(n), "--keys-file", str(work / "keys.json")]
+    agents = ["--scripted", "--language", "--log-dir", str(logs), *common]
+    env = {**os.environ, "ROS_DOMAIN_ID": str(domains.claim()), "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
+    began = time.monotonic()
+    server = None
+    if args.server_host:
+        hosts = netns.two_hosts()
+        a, b = hosts.__enter__()
+        env.update(netns.HOST_ENV)
+        only_server = ["--only", "world_model", "--no-human", "--log-dir", str(logs / "server"), *common]
+        server = subprocess.Popen(
+            netns.in_host(a, launcher(*only_server)),
+            env=env,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+        )
+        for line in server.stdout:
+            if "nodes ready" in line or "did not become ready" in line:
+                break
+        cmd = netns.in_host(b, launcher("--only", "env,planner,human", *agents))
+    else:
+        cmd = launcher(*agents)
+    try:
+        proc = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=args.timeout)
+    finally:
+        if server is not None:
+            server.send_signal(signal.SIGINT)
+            server.communicate(timeout=60)
+            hosts.__exit__(None, None, None)
+    wall = time.monotonic() - began
+    if proc.returncode != 0:
+        raise SystemExit(f"{n} agents: launcher exited {proc.returncode}:\n{proc.stdout[-3000:]}")
+    names = [""] if n == 1 else [f"agent{i + 1}" for i in range(n)]
+    per_agent, first_plan, last_report = [], [], []
+    fleet_manual = None
+    for name in names:
+        records = Ledger(logs / name / LEDGER_FILE, read_only=True).history()
+        report = next(r for r in records if r["kind"] == "report")
+        manuals = [r["payload"] for r in records if r["kind"] == "manual" and r["payload"]["source"] == "human"]
+        fleet_manual = fleet_manual or (manuals[0]["descriptions"] if manuals else None)
+        replanned = any(
+            r["kind"] == "plan" and r["payload"]["reason"] == "manual" and r["payload"]["manual"] == fleet_manual
+            for r in records
+        )
+        first_plan.append(next(r["time"] for r in records if r["kind"] == "plan"))
+        last_report.append(report["time"])
+        per_agent.append(
+            {
+                "agent": name or "the agent",
+                "seed": args.seed + len(per_agent),
+                "real_return": report["payload"]["real_return"],
+                "outcome": report["payload"]["outcome"],
+                "plans": sum(r["kind"] == "plan" for r in records),
+                "replanned_under_fleet_manual": replanned,
+            }
+        )
+    server_log = (logs / "server" if args.server_host else logs) / "world_model.log"
+    found = LOAD.findall(server_log.read_text())
+    load = json.loads(found[-1]) if found else {}
+    minutes = (max(last_report) - min(first_plan)) / 60
+    returns = [a["real_return"] for a in per_agent]
+    return {
+        "agents": n,
+        "mean_real_return": round(float(np.mean(returns)), 3),
+        "per_agent": per_agent,
+        "reviews_per_minute": round(n / minutes, 2) if minutes > 0 else None,
+        "replanned_under_fleet_manual": sum(a["replanned_under_fleet_manual"] for a in per_agent),
+        "world_model": load,
+        "wall_s": round(wall, 1),
+    }
+
+
+def main() -> int:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--agents", type=int, nargs="+", default=[1, 4, 8], help="fleet sizes to run, one after another")
+    p.add_argument("--index", type=int, default=0, help="NewAll test game every agent plays")
+    p.add_argument("--seed", type=int, default=0, help="agent k plays seed SEED + k - 1")
+    p.add_argument("--iterations", type=int, default=4, help="the planners' learning rounds from each manual")
+    p.add_argument("--futures", type=int, default=4, help="sampled futures shown with each plan")
+    p.add_argument(
+        "--server-host", action="store_true", help="the world-model server in a network namespace of its own"
+    )
+    p.add_argument("--timeout", type=float, default=1800.0, help="seconds one fleet may take")
+    p.add_argument("--out", type=Path, default=None, help="write the figures here (JSON)")
+    args = p.parse_args()
+    if args.server_host and (why := netns.unavailable()):
+        p.error(f"--server-host: {why}")
+    rows = []
+    with tempfile.TemporaryDirectory(prefix="lwm-fleet-") as tmp:
+        for n in args.agents:
+            row = run_fleet(n, args, Path(tmp))
+            rows.append(row)
+            wm = row["world_model"]
+            each = ", ".join(f"{a['real_return']:+.2f}" for a in row["per_agent"])
+            print(
+                f"{n} agent(s): mean real return {row['mean_real_return']:+.2f} ({each}); "
+                f"{row['reviews_per_minute']} reviews/min; re-planned under the fleet's manual: "
+                f"{row['replanned_under_fleet_manual']}/{n}; imagine calls {wm.get('calls')}, "
+                f"p50 {wm.get('latency p50 ms')} ms, p99 {wm.get('latency p99 ms')} ms, "
+                f"mean one-shot batch {wm.get('mean batch')}; wall {row['wall_s']:.0f} s",
+                flush=True,
+            )
+    record = {
+        "command": " ".join([Path(sys.executable).name, *sys.argv]),
+        "commit": git_commit(),
+        "args": {k: str(v) if isinstance(v, Path) else v for k, v in vars(args).items()},
+        "machine": {"cpus": os.cpu_count(), "python": platform.python_version()},
+        "fleets": rows,
+    }
+    if args.out:
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        args.out.write_text(json.dumps(record, indent=1) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
