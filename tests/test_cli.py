@@ -247,7 +247,9 @@ def test_lwm_nodes_setup_declares_the_ros_command_and_every_node():
     assert points[cli_main.PLUGIN_GROUP] == ["ros = lwm_nodes.ros_cli:register"]
     nodes = ROOT / "ros_ws" / "src" / "lwm_nodes" / "lwm_nodes"
     scripts = dict(line.replace(" ", "").split("=") for line in points["console_scripts"])
-    assert set(scripts) == {f"lwm_{n}_node" for n in ("env", "world_model", "planner", "human", "recorder")}
+    assert set(scripts) == {
+        f"lwm_{n}_node" for n in ("env", "world_model", "planner", "human", "recorder", "fleet_page")
+    }
     for target in scripts.values():
         module, function = target.split(":")
         source = (nodes / f"{module.split('.')[-1]}.py").read_text()

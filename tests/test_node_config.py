@@ -29,6 +29,7 @@ CONFIGS = {
         "_keys_file",
     ],
     "lwm_recorder.yaml": ["recorder_node", "__init__"],
+    "fleet_page.yaml": ["fleet_page_node", "__init__", "Signer", "_keys_file"],
 }
 HELPERS = {
     "__init__": "common",  # JsonNode's: every node's

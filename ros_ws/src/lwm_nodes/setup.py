@@ -22,6 +22,7 @@ setup(
             "lwm_planner_node = lwm_nodes.planner_node:main",
             "lwm_human_node = lwm_nodes.human_node:main",
             "lwm_recorder_node = lwm_nodes.recorder_node:main",
+            "lwm_fleet_page_node = lwm_nodes.fleet_page_node:main",
         ],
         # `lwm ros`: the core's command line discovers the commands of this group (lwm_models/cli/main.py).
         "lwm_models.commands": [

@@ -10,6 +10,7 @@ import signal
 import sys
 import threading
 import time
+import uuid
 from collections.abc import Callable
 from pathlib import Path
 
@@ -178,6 +179,60 @@ class JsonNode(Node):
                 )
             )
         )
+
+
+class Answers:
+    """What a node sent, by msg_id, until the receiving node answers it on /lwm/acks: a sender
+    (the human node, the fleet page) waits for the answer to show the person, in words, whether
+    what they sent was taken. `on_answer(ack, payload)` hears each first answer to its messages;
+    answers to others, and repeats, are ignored."""
+
+    def __init__(self, node: JsonNode, on_answer: Callable[[dict, dict], None] | None = None) -> None:
+        self.node = node
+        self.on_answer = on_answer
+        self._sent: dict[str, dict] = {}
+        self._lock = threading.Lock()
+        node.create_subscription(String, ACKS_TOPIC, self._on_ack, ACKS)
+
+    def sender(self, publish: Callable[[dict], None]) -> Callable[[dict], str]:
+        """`publish`, with a fresh msg_id on each payload; the returned function gives the msg_id."""
+
+        def send(payload: dict) -> str:
+            msg_id = f"{self.node.get_name()}-{uuid.uuid4().hex[:12]}"
+            with self._lock:
+                self._sent[msg_id] = {"event": threading.Event(), "ack": None, "payload": payload}
+            publish({**payload, "msg_id": msg_id})
+            return msg_id
+
+        return send
+
+    def _on_ack(self, msg: String) -> None:
+        try:
+            ack = messages.parse("ack", msg.data)
+        except messages.MessageError as exc:
+            self.node.report_error(ACKS_TOPIC, exc, msg.data)
+            return
+        with self._lock:
+            entry = self._sent.get(ack["msg_id"] or "")
+            if entry is None or entry["ack"] is not None:
+                return
+            entry["ack"] = ack
+        entry["event"].set()
+        if self.on_answer is not None:
+            self.on_answer(ack, entry["payload"])
+
+    def wait(self, msg_id: str, timeout: float) -> dict | None:
+        """The answer to msg_id, waiting up to `timeout` seconds; None if none came."""
+        with self._lock:
+            entry = self._sent.get(msg_id)
+        if entry is None or not entry["event"].wait(timeout):
+            return None
+        return entry["ack"]
+
+    def awaited(self) -> int:
+        """Messages sent that no node has answered yet."""
+        with self._lock:
+            return sum(entry["ack"] is None for entry in self._sent.values())
 
 
 def make_executor(threads: int = 1) -> Executor:

@@ -22,11 +22,9 @@ from __future__ import annotations
 import queue
 import threading
 import time
-import uuid
 from collections.abc import Callable
 
 from lwm_interfaces.srv import Json
-from std_msgs.msg import String
 
 from lwm_models import messages
 from lwm_models.agent.imaginer import ServiceImaginer
@@ -34,7 +32,7 @@ from lwm_models.agent.review import check_labels
 from lwm_models.data.episode import Episode
 from lwm_models.data.splits import load_split
 from lwm_models.errors import LwmError
-from lwm_nodes.common import ACKS, ACKS_TOPIC, FEEDBACK, LATCHED, JsonNode, json_caller, run
+from lwm_nodes.common import FEEDBACK, LATCHED, Answers, JsonNode, json_caller, run
 from lwm_nodes.reviewer import Reviewer
 from lwm_nodes.trust import Signer
 
@@ -59,9 +57,8 @@ class HumanNode(JsonNode):
         self.labels_lock = threading.Lock()  # the page answers from its own threads (a double click, too)
         self.executing: str | None = None  # the review whose approved plan the agent plays now
         self.reported: set[str] = set()  # reviews whose report came (an ack may come after it)
-        # What this node sent, by msg_id, until the receiving node answers on /lwm/acks.
-        self.sent: dict[str, dict] = {}
-        self.sent_lock = threading.Lock()
+        # What this node sent, until the receiving node answers on /lwm/acks.
+        self.answers = Answers(self, self.on_answer)
         # Service calls (imagination, resets, history) wait for answers the executor delivers: a
         # reviewer's work that calls them runs in this thread, never in a callback.
         self.work: queue.Queue = queue.Queue()
@@ -77,7 +74,7 @@ class HumanNode(JsonNode):
         self.reviewer: Reviewer = chosen(self)
 
         def sender(topic: str, schema: str, qos) -> Callable[[dict], str]:
-            return self._answered(self.signer.publisher(self.json_publisher(topic, schema, qos), schema))
+            return self.answers.sender(self.signer.publisher(self.json_publisher(topic, schema, qos), schema))
 
         self.publish_feedback = sender("review/feedback", "review_feedback", FEEDBACK)
         self.publish_labels = sender("review/labels", "labels", FEEDBACK)
@@ -85,7 +82,6 @@ class HumanNode(JsonNode):
         # fleet, one agent's); the launcher points a fleet's reviewer at /feedback/manual, every agent's.
         manual_topic = p("manual_topic", "feedback/manual").value
         self.publish_manual = sender(manual_topic, "manual", LATCHED)
-        self.create_subscription(String, ACKS_TOPIC, self.on_ack, ACKS)
         self.imaginer = ServiceImaginer(
             json_caller(self, self.create_client(Json, "lwm/imagine"), "imagine_response", 30.0)
         )
@@ -103,45 +99,15 @@ class HumanNode(JsonNode):
         self.reviewer.start()
 
     # ------------------------------------------------------------------ what this node sends
-    def _answered(self, publish: Callable[[dict], None]) -> Callable[[dict], str]:
-        """`publish`, with a msg_id on each payload, so that the receiving node's answer on
-        /lwm/acks comes back to this sender; returns the msg_id."""
-
-        def send(payload: dict) -> str:
-            msg_id = f"{self.get_name()}-{uuid.uuid4().hex[:12]}"
-            with self.sent_lock:
-                self.sent[msg_id] = {"event": threading.Event(), "ack": None, "payload": payload}
-            publish({**payload, "msg_id": msg_id})
-            return msg_id
-
-        return send
-
-    def on_ack(self, msg: String) -> None:
-        """The receiving node's answer to something this node sent. Answers to others, and
-        repeats, are ignored."""
-        try:
-            ack = messages.parse("ack", msg.data)
-        except messages.MessageError as exc:
-            self.report_error(ACKS_TOPIC, exc, msg.data)
-            return
-        with self.sent_lock:
-            entry = self.sent.get(ack["msg_id"] or "")
-            if entry is None or entry["ack"] is not None:
-                return
-            entry["ack"] = ack
-        sent = entry["payload"]
+    def on_answer(self, ack: dict, sent: dict) -> None:
+        """The receiving node's answer to something this node sent."""
         if ack["ok"] and sent.get("decision") == "approve" and sent["review_id"] not in self.reported:
             self.executing = sent["review_id"]  # the planner plays it now: no reset under its feet
-        entry["event"].set()
         self.reviewer.on_ack(ack, sent)
 
     def answer_to(self, msg_id: str, timeout: float) -> dict | None:
         """The receiving node's answer to msg_id, waiting up to `timeout` seconds; None if none came."""
-        with self.sent_lock:
-            entry = self.sent.get(msg_id)
-        if entry is None or not entry["event"].wait(timeout):
-            return None
-        return entry["ack"]
+        return self.answers.wait(msg_id, timeout)
 
     def next_episode(self, seed: int | None = None, restart: bool = False) -> str:
         """Start the next episode of this game (the next seed, or `seed`), or with `restart` this
@@ -213,8 +179,7 @@ class HumanNode(JsonNode):
         return answer
 
     def health(self) -> tuple[str, dict[str, object]]:
-        with self.sent_lock:
-            waiting = sum(entry["ack"] is None for entry in self.sent.values())
+        waiting = self.answers.awaited()
         plan = self.plan
         values = {
             "reviewer": self.signer.reviewer or "nobody yet",

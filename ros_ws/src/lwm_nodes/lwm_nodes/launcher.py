@@ -108,6 +108,7 @@ CONFIG_FILES = {
     "planner": "planner.yaml",
     "human": "human_feedback.yaml",
     "recorder": "lwm_recorder.yaml",
+    "fleet_page": "fleet_page.yaml",
 }
 
 
@@ -160,6 +161,12 @@ def fleet(nodes: list[NodeSpec], agents: int, seed: int, log_dir: Path) -> list[
             out.append(replace(spec, params={**spec.params, "agents": f"[{','.join(names)}]"}))
         elif spec.role == "recorder":
             out.append(spec)
+        elif spec.role == "human" and "page_port" in spec.params:  # the person's fleet page, on PORT
+            port = int(spec.params["page_port"])
+            params = {"agents": f"[{','.join(names)}]", "page_port": str(port), "first_agent_port": str(port + 1)}
+            params.update({k: v for k, v in spec.params.items() if k in ("keys_file", "page_host")})
+            config = spec.config.with_name(CONFIG_FILES["fleet_page"]) if spec.config else None
+            out.append(NodeSpec("fleet_page", "lwm_nodes.fleet_page_node", params, config=config))
     for i, agent in enumerate(names):
         for spec in nodes:
             if spec.role in ("world_model", "recorder"):
@@ -169,6 +176,8 @@ def fleet(nodes: list[NodeSpec], agents: int, seed: int, log_dir: Path) -> list[
                 params["seed"] = str(seed + i)
             elif spec.role == "planner":
                 params["ledger"] = str(log_dir / agent / run_dirs.LEDGER_FILE)
+            elif spec.role == "human" and "page_port" in params:  # agent K's own review page, on PORT+K
+                params["page_port"] = str(int(params["page_port"]) + i + 1)
             elif spec.role == "human":
                 if i == 0:
                     params["manual_topic"] = "/feedback/manual"
@@ -491,8 +500,9 @@ def main(argv: list[str] | None = None) -> int:
         type=int,
         default=1,
         help="agents under review (2 or more: a fleet, agent1, agent2, ..., each with its environment, planner and "
-        "scripted reviewer in its own ROS namespace, all sharing one world-model server; they play the game from "
-        "seeds SEED, SEED+1, ..., and the first reviewer's language feedback goes to every agent)",
+        "reviewer in its own ROS namespace, all sharing one world-model server; they play the game from seeds SEED, "
+        "SEED+1, ...; with --page PORT the fleet's queue is on PORT and agent K's review page on PORT+K; with "
+        "--scripted the first reviewer's language feedback goes to every agent)",
     )
     human = parser.add_mutually_exclusive_group()
     human.add_argument("--scripted", action="store_true", help="the simulated human reviews; exits with a summary")
@@ -520,10 +530,11 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"--config {args.config}: no {', '.join(missing)} there (copy the package's config/ and edit it)")
     if args.agents < 1:
         parser.error(f"--agents must be 1 or more, not {args.agents}")
-    if args.agents > 1 and not (args.scripted or args.no_human):
+    if args.agents > 1 and not (args.scripted or args.no_human or args.page is not None):
         parser.error(
-            "a fleet (--agents 2 or more) is reviewed by the scripted reviewer (--scripted) or from the command line "
-            "(--no-human and `lwm ros pub /agent1/review/feedback ...`); the page and the terminal review one agent"
+            "a fleet (--agents 2 or more) is reviewed on the page (--page PORT: the fleet's queue on PORT, agent K's "
+            "review page on PORT+K), by the scripted reviewer (--scripted) or from the command line (--no-human); "
+            "the terminal reviews one agent"
         )
     ledgers = (
         [ledger]
@@ -573,7 +584,7 @@ def main(argv: list[str] | None = None) -> int:
         unknown = wanted - {"env", "world_model", "planner", "human"}
         if unknown:
             parser.error(f"--only: unknown nodes {', '.join(sorted(unknown))} (env, world_model, planner, human)")
-        nodes = [n for n in nodes if n.role in wanted]
+        nodes = [n for n in nodes if n.role in wanted or (n.role == "fleet_page" and "human" in wanted)]
     if args.record is not None:
         recorder = NodeSpec(
             "recorder",

@@ -131,8 +131,8 @@ class PageReviewer(Reviewer):
         self.node.get_logger().info(f"page: {len(labels['states'])} label(s) for request {labels['request_id']}")
         return self._answer(msg_id, "the planner")
 
-    def on_manual(self, descriptions: list[str]) -> str:
-        msg_id = self.node.publish_manual({"descriptions": descriptions, "source": "human"})
+    def on_manual(self, body: dict) -> str:
+        msg_id = self.node.publish_manual({"descriptions": body["descriptions"], "source": "human"})
         self.node.get_logger().info("page: a new manual")
         return self._answer(msg_id, "the world-model server")
 

@@ -84,9 +84,11 @@ class PlannerNode(JsonNode):
         self.loop = ReviewLoop(self.make_policy, encoder, self.imaginer, ports, Ledger(ledger), config)
         self.json_subscription("lwm/status", "status", self.loop.on_status, LATCHED)
         self.json_subscription("env/state", "state", self.loop.on_state, LATCHED)
-        on_feedback = verified(keyring, "review_feedback", "review/feedback", self.loop.on_feedback)
+        on_feedback = verified(
+            keyring, "review_feedback", self.resolve_topic_name("review/feedback"), self.loop.on_feedback
+        )
         self.json_subscription("review/feedback", "review_feedback", on_feedback, FEEDBACK, acks=True)
-        on_labels = verified(keyring, "labels", "review/labels", self.loop.on_labels)
+        on_labels = verified(keyring, "labels", self.resolve_topic_name("review/labels"), self.loop.on_labels)
         self.json_subscription("review/labels", "labels", on_labels, FEEDBACK, acks=True)
         self.create_service(Json, "planner/history", self.on_history)
 

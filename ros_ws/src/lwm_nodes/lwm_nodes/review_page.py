@@ -57,14 +57,19 @@ class ReviewPage:
         host: str,
         port: int,
         on_feedback: Callable[[dict], str],
-        on_manual: Callable[[list[str]], str],
+        on_manual: Callable[[dict], str],
         on_labels: Callable[[dict], str],
         history: Callable[[str | None], dict],
         on_episode: Callable[[dict], str] | None = None,
         on_reviewer: Callable[[dict], str] | None = None,
         reviewer: str = "",
+        html: Path = PAGE,
+        kinds: tuple[str, ...] | None = None,
     ) -> None:
-        self._state: dict[str, dict | None] = dict.fromkeys(self.KINDS)
+        """html: the page served at /; kinds: what it shows (default KINDS; the fleet page its own)."""
+        self.html = html
+        self.kinds = kinds or self.KINDS
+        self._state: dict[str, dict | None] = dict.fromkeys(self.kinds)
         self._streams: list[queue.SimpleQueue] = []
         self._lock = threading.Lock()
         self._closed = threading.Event()
@@ -108,7 +113,7 @@ class ReviewPage:
         stream: queue.SimpleQueue = queue.SimpleQueue()
         with self._lock:
             for kind, payload in self._state.items():
-                if payload is not None or kind in self.ALWAYS_SENT:
+                if payload is not None or (kind in self.ALWAYS_SENT and kind in self.kinds):
                     stream.put((kind, payload))
             self._streams.append(stream)
         return stream
@@ -144,7 +149,7 @@ def _handler(page: ReviewPage) -> type[BaseHTTPRequestHandler]:
         def do_GET(self) -> None:  # noqa: N802 (http.server's naming)
             url = urlsplit(self.path)
             if url.path == "/":
-                self._send(HTTPStatus.OK, PAGE.read_bytes(), "text/html; charset=utf-8")
+                self._send(HTTPStatus.OK, page.html.read_bytes(), "text/html; charset=utf-8")
             elif url.path == "/api/state":
                 self._send(HTTPStatus.OK, json.dumps(page.snapshot()).encode(), "application/json")
             elif url.path == "/api/reviewer":
@@ -165,7 +170,7 @@ def _handler(page: ReviewPage) -> type[BaseHTTPRequestHandler]:
             routes = {
                 "/api/feedback": page.on_feedback,
                 "/api/labels": page.on_labels,
-                "/api/manual": lambda b: page.on_manual(b["descriptions"]),
+                "/api/manual": page.on_manual,
                 "/api/episode": page.on_episode,
                 "/api/reviewer": page.on_reviewer,
             }

@@ -67,7 +67,9 @@ class SimulatorNode(JsonNode):
             self.status_publishers[agent] = self.json_publisher(status, "status", LATCHED)
             if agent:  # one unnamed agent's own manual topic is the fleet's, below
                 topic = agent_topic(agent, "feedback/manual")
-                to_agent = verified(keyring, "manual", topic, lambda p, a=agent: self.on_feedback(p, a))
+                to_agent = verified(
+                    keyring, "manual", self.resolve_topic_name(topic), lambda p, a=agent: self.on_feedback(p, a)
+                )
                 self.json_subscription(topic, "manual", to_agent, LATCHED, acks=True)
             self.json_subscription(
                 agent_topic(agent, "env/manual"), "manual", lambda p, a=agent: self.on_env_manual(p, a), LATCHED
@@ -80,7 +82,9 @@ class SimulatorNode(JsonNode):
             )
             self.status_publishers[agent](self.sim.status(agent))
         # A manual from a person counts only if a reviewer it trusts signed it (keys_file, trusted).
-        to_all = verified(keyring, "manual", "feedback/manual", lambda p: self.on_feedback(p, None))
+        to_all = verified(
+            keyring, "manual", self.resolve_topic_name("feedback/manual"), lambda p: self.on_feedback(p, None)
+        )
         self.json_subscription("feedback/manual", "manual", to_all, LATCHED, acks=True)
         served = ", ".join(agents) if agents != [""] else "one agent"
         model = f"model {self.sim.model_name} from {self.sim.checkpoint}"
