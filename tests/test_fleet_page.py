@@ -21,10 +21,9 @@ from lwm_nodes import domains  # noqa: E402
 CHROMIUM, DRIVER = shutil.which("chromium"), shutil.which("chromedriver")
 if not (CHROMIUM and DRIVER):
     pytest.skip("no Chromium (apt-get install chromium chromium-driver)", allow_module_level=True)
-webdriver = pytest.importorskip("selenium.webdriver")
-from selenium.webdriver.chrome.service import Service  # noqa: E402
+pytest.importorskip("selenium.webdriver")
 from selenium.webdriver.support.ui import WebDriverWait  # noqa: E402
-from test_review_page import free_port  # noqa: E402
+from test_review_page import browser, free_port  # noqa: E402, F401 (browser: the same headless Chromium fixture)
 
 MANUAL = [
     "the plane chases you and it is deadly.",
@@ -60,17 +59,6 @@ def fleet(tmp_path):
     assert proc.returncode == 0, out
 
 
-@pytest.fixture()
-def browser():
-    opts = webdriver.ChromeOptions()
-    opts.binary_location = CHROMIUM
-    for arg in ("--headless=new", "--no-sandbox", "--disable-gpu", "--window-size=1280,900"):
-        opts.add_argument(arg)
-    driver = webdriver.Chrome(service=Service(DRIVER), options=opts)
-    yield driver
-    driver.quit()
-
-
 def rows(driver) -> dict[str, list[str]]:
     """The queue as shown: agent -> its cells' text."""
     return driver.execute_script(
@@ -87,7 +75,7 @@ def shot(driver, tmp_path: Path, name: str) -> None:
         driver.save_screenshot(str(Path(os.environ["LWM_SCREENSHOTS"]) / name))
 
 
-def test_one_manual_on_the_fleet_page_replans_every_agent(fleet, browser):
+def test_one_manual_on_the_fleet_page_replans_every_agent(fleet, browser):  # noqa: F811 (the fixture)
     pages, tmp_path = fleet
     browser.get(pages["fleet_page"])
     wait = WebDriverWait(browser, 240, poll_frequency=0.5)

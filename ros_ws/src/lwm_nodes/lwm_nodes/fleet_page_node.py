@@ -19,7 +19,7 @@ import time
 from pathlib import Path
 
 from lwm_nodes.common import FEEDBACK, LATCHED, Answers, JsonNode, run
-from lwm_nodes.review_page import NoAnswer, Refused, ReviewPage
+from lwm_nodes.review_page import ReviewPage, reply
 from lwm_nodes.trust import Signer
 
 FLEET_PAGE = Path(__file__).with_name("web") / "fleet.html"
@@ -171,12 +171,7 @@ class FleetPageNode(JsonNode):
             raise ValueError("say who you are first: your manual is signed with your own key")
         msg_id = self.manual_to[agent]({"descriptions": body["descriptions"], "source": "human"})
         self.get_logger().info(f"fleet page: a manual for {agent or 'every agent'}")
-        ack = self.answers.wait(msg_id, ANSWER_WAIT_S)
-        if ack is None:
-            raise NoAnswer(f"sent, but the world-model server has not answered in {ANSWER_WAIT_S:.0f} s")
-        if not ack["ok"]:
-            raise Refused(ack["reason"])
-        return ack["reason"]
+        return reply(self.answers.wait(msg_id, ANSWER_WAIT_S), "the world-model server", ANSWER_WAIT_S)
 
     def on_reviewer(self, body: dict) -> str:
         name = body.get("reviewer")

@@ -294,21 +294,24 @@ def choose_run_dir(log_dir: Path | None, resume: Path | None) -> tuple[Path, Pat
     return run_dirs.new_run_dir(), run_dirs.LOGS / run_dirs.KEYS_FILE
 
 
-def describe_run(log_dir: Path, ledger: Path, state: Path, resumed: bool) -> str:
+def describe_run(log_dir: Path, ledgers: list[Path], state: Path, resumed: bool) -> str:
     """What this run starts from, said before anything starts: a person must know whether the
-    agent remembers an earlier review."""
+    agent (or a fleet's agents, a ledger each) remembers an earlier review."""
     if not resumed:
         return (
             f"launcher: a new run in {log_dir}: no earlier reviews, the game's own manual, the shipped policy "
             f"(continue it later with --resume {log_dir})"
         )
     reviews, finished = 0, 0
-    if ledger.is_file():
+    for ledger in ledgers:
+        if not ledger.is_file():
+            continue
         try:
             book = Ledger(ledger, read_only=True)
             summaries = book.summaries()
             book.close()
-            reviews, finished = len(summaries), sum(s["report"] is not None for s in summaries)
+            reviews += len(summaries)
+            finished += sum(s["report"] is not None for s in summaries)
         except (OSError, sqlite3.Error) as exc:
             return f"launcher: resuming {log_dir}; its ledger {ledger} cannot be read ({exc})"
     manual = ""
@@ -321,7 +324,8 @@ def describe_run(log_dir: Path, ledger: Path, state: Path, resumed: bool) -> str
         except (OSError, ValueError, TypeError, AttributeError):
             manual = f"; the world-model server's state {state} cannot be read"
     return (
-        f"launcher: resuming the run in {log_dir}: {reviews} review(s) in its ledger, {finished} finished "
+        f"launcher: resuming the run in {log_dir}: {reviews} review(s) in its ledger{'s' if len(ledgers) > 1 else ''}, "
+        f"{finished} finished "
         f"(shown, not redone){manual}"
     )
 
@@ -548,7 +552,7 @@ def main(argv: list[str] | None = None) -> int:
                 f"{', '.join(map(str, earlier))} hold(s) an earlier run's reviews or manual; pass --resume "
                 f"{args.log_dir} to continue that run, or leave out --log-dir/--ledger/--state for a new one"
             )
-    print(describe_run(args.log_dir, ledger, state, args.resume is not None), flush=True)
+    print(describe_run(args.log_dir, ledgers, state, args.resume is not None), flush=True)
     os.environ.setdefault("ROS_LOG_DIR", str(args.log_dir.resolve() / "ros"))
     if args.scripted:
         human = "scripted"

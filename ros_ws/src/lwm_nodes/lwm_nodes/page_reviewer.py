@@ -18,7 +18,7 @@ from lwm_models import messages
 from lwm_models.agent.imaginer import Unavailable
 from lwm_models.agent.review_view import history_view, label_request_view, plan_view, progress_view, report_view
 from lwm_models.errors import LwmError
-from lwm_nodes.review_page import NoAnswer, Refused, ReviewPage
+from lwm_nodes.review_page import ReviewPage, reply
 from lwm_nodes.reviewer import Reviewer, show
 
 if TYPE_CHECKING:
@@ -100,12 +100,7 @@ class PageReviewer(Reviewer):
 
     # ------------------------------------------------------------------ what the person does there
     def _answer(self, msg_id: str, who: str) -> str:
-        ack = self.node.answer_to(msg_id, PAGE_ANSWER_WAIT_S)
-        if ack is None:
-            raise NoAnswer(f"sent, but {who} has not answered in {PAGE_ANSWER_WAIT_S:.0f} s (is it running?)")
-        if not ack["ok"]:
-            raise Refused(ack["reason"])
-        return ack["reason"]
+        return reply(self.node.answer_to(msg_id, PAGE_ANSWER_WAIT_S), who, PAGE_ANSWER_WAIT_S)
 
     def on_feedback(self, body: dict) -> str:
         """An answer to the plan; the schema (checked before publishing) refuses a wrong one, the

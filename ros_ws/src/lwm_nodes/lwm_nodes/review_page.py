@@ -41,6 +41,16 @@ class NoAnswer(ValueError):
     """Nothing answered what the person sent in time (it may still be taken)."""
 
 
+def reply(ack: dict | None, who: str, waited: float) -> str:
+    """The words a page shows for the receiving node's answer to what the person sent: its reason
+    when taken; Refused with its reason, or NoAnswer when nothing came in `waited` seconds."""
+    if ack is None:
+        raise NoAnswer(f"sent, but {who} has not answered in {waited:.0f} s (is it running?)")
+    if not ack["ok"]:
+        raise Refused(ack["reason"])
+    return ack["reason"]
+
+
 class ReviewPage:
     """What the page shows and where its answers go. on_feedback, on_labels and on_manual take the
     body of a POST and return the receiving node's words (shown beside the control), or raise to
@@ -246,4 +256,4 @@ def _handler(page: ReviewPage) -> type[BaseHTTPRequestHandler]:
     return Handler
 
 
-__all__ = ["ReviewPage"]
+__all__ = ["NoAnswer", "Refused", "ReviewPage", "reply"]
