@@ -4,7 +4,9 @@ For each fleet size N, the launcher starts one world-model server and N agents (
 with its environment, planner and scripted reviewer in its own namespace, playing the same NewAll
 test game from seeds SEED, SEED+1, ...; agent1's reviewer first gives language feedback to every
 agent (the true manual in other words, on /feedback/manual), and each reviewer then reviews its
-agent's plans to the execution's report. With --server-host, the world-model server runs in one
+agent's plans to the execution's report. Manuals are drawn from the dataset's human-written
+descriptions when they are at hand (--texts), as the shipped models were trained: the project's
+generator's text is one the shipped EMMA-LWM reads poorly (docs/language.md). With --server-host, the world-model server runs in one
 network namespace and the agents in another (two simulated hosts, traffic over a veth pair: needs
 root).
 
@@ -42,6 +44,8 @@ from lwm_models.ledger import Ledger  # noqa: E402
 from lwm_models.run_dirs import LEDGER_FILE  # noqa: E402
 
 LOAD = re.compile(r"imagine load: (\{.*\})")
+SHARED_TEXTS = ROOT.parent / "shared" / "data" / "messenger-texts"
+TEXTS = [SHARED_TEXTS / "text_train.json", SHARED_TEXTS / "text_val.json"]
 
 
 def launcher(*args: str) -> list[str]:
@@ -50,8 +54,10 @@ def launcher(*args: str) -> list[str]:
 
 def run_fleet(n: int, args, work: Path) -> dict:
     logs = work / f"agents{n}"
-    common = ["--index", str(args.index), "--seed", str(args.seed), "--iterations", str(args.iterations)]
-    common += ["--futures", str(args.futures), "--agents", str(n), "--keys-file", str(work / "keys.json")]
+    common = ["--index", str(args.index), "--seed", str(args.seed), "--agents", str(n), "--ready-timeout", "600"]
+    common += ["--keys-file", str(work / "keys.json")] + (["--texts", *args.texts] if args.texts else [])
+    common += ["--iterations", str(args.iterations)] if args.iterations else []
+    common += ["--futures", str(args.futures)] if args.futures else []
     agents = ["--scripted", "--language", "--log-dir", str(logs), *common]
     env = {**os.environ, "ROS_DOMAIN_ID": str(domains.claim()), "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
     began = time.monotonic()
@@ -83,7 +89,9 @@ def run_fleet(n: int, args, work: Path) -> dict:
             hosts.__exit__(None, None, None)
     wall = time.monotonic() - began
     if proc.returncode != 0:
-        raise SystemExit(f"{n} agents: launcher exited {proc.returncode}:\n{proc.stdout[-3000:]}")
+        raise SystemExit(
+            f"{n} agents: launcher exited {proc.returncode}:\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}"
+        )
     names = [""] if n == 1 else [f"agent{i + 1}" for i in range(n)]
     per_agent, first_plan, last_report = [], [], []
     fleet_manual = None
@@ -92,6 +100,7 @@ def run_fleet(n: int, args, work: Path) -> dict:
         report = next(r for r in records if r["kind"] == "report")
         manuals = [r["payload"] for r in records if r["kind"] == "manual" and r["payload"]["source"] == "human"]
         fleet_manual = fleet_manual or (manuals[0]["descriptions"] if manuals else None)
+        took = any(r["kind"] == "manual" and r["payload"]["descriptions"] == fleet_manual for r in records)
         replanned = any(
             r["kind"] == "plan" and r["payload"]["reason"] == "manual" and r["payload"]["manual"] == fleet_manual
             for r in records
@@ -105,6 +114,7 @@ def run_fleet(n: int, args, work: Path) -> dict:
                 "real_return": report["payload"]["real_return"],
                 "outcome": report["payload"]["outcome"],
                 "plans": sum(r["kind"] == "plan" for r in records),
+                "took_fleet_manual": took,  # its review was still open when the manual came
                 "replanned_under_fleet_manual": replanned,
             }
         )
@@ -118,8 +128,11 @@ def run_fleet(n: int, args, work: Path) -> dict:
         "mean_real_return": round(float(np.mean(returns)), 3),
         "per_agent": per_agent,
         "reviews_per_minute": round(n / minutes, 2) if minutes > 0 else None,
+        "won": sum(a["outcome"] == "won" for a in per_agent),
+        "took_fleet_manual": sum(a["took_fleet_manual"] for a in per_agent),
         "replanned_under_fleet_manual": sum(a["replanned_under_fleet_manual"] for a in per_agent),
         "world_model": load,
+        "calls_per_second": round(load.get("calls", 0) / wall, 1) if load else None,
         "wall_s": round(wall, 1),
     }
 
@@ -129,8 +142,17 @@ def main() -> int:
     p.add_argument("--agents", type=int, nargs="+", default=[1, 4, 8], help="fleet sizes to run, one after another")
     p.add_argument("--index", type=int, default=0, help="NewAll test game every agent plays")
     p.add_argument("--seed", type=int, default=0, help="agent k plays seed SEED + k - 1")
-    p.add_argument("--iterations", type=int, default=4, help="the planners' learning rounds from each manual")
-    p.add_argument("--futures", type=int, default=4, help="sampled futures shown with each plan")
+    p.add_argument(
+        "--iterations", type=int, default=None, help="the planners' learning rounds from each manual (default: theirs)"
+    )
+    p.add_argument("--futures", type=int, default=None, help="sampled futures shown with each plan (default: theirs)")
+    p.add_argument(
+        "--texts",
+        nargs="+",
+        default=[str(t) for t in TEXTS if t.is_file()] or None,
+        help="human-written description files for the manuals and the reviewer's rewording (default: the "
+        "dataset's, when present; else the project's generator)",
+    )
     p.add_argument(
         "--server-host", action="store_true", help="the world-model server in a network namespace of its own"
     )
@@ -148,8 +170,9 @@ def main() -> int:
             each = ", ".join(f"{a['real_return']:+.2f}" for a in row["per_agent"])
             print(
                 f"{n} agent(s): mean real return {row['mean_real_return']:+.2f} ({each}); "
-                f"{row['reviews_per_minute']} reviews/min; re-planned under the fleet's manual: "
-                f"{row['replanned_under_fleet_manual']}/{n}; imagine calls {wm.get('calls')}, "
+                f"won {row['won']}/{n}; {row['reviews_per_minute']} reviews/min; took the fleet's manual "
+                f"{row['took_fleet_manual']}/{n}, re-planned under it {row['replanned_under_fleet_manual']}/{n}; "
+                f"imagine calls {wm.get('calls')} ({row['calls_per_second']}/s), "
                 f"p50 {wm.get('latency p50 ms')} ms, p99 {wm.get('latency p99 ms')} ms, "
                 f"mean one-shot batch {wm.get('mean batch')}; wall {row['wall_s']:.0f} s",
                 flush=True,

@@ -6,6 +6,7 @@ import copy
 import json
 
 import pytest
+from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey
 
 from lwm_models import messages, signing
 
@@ -53,8 +54,9 @@ SIGNED = {"review_feedback": 2, "labels": 2, "manual": 2}  # version 2 added the
 
 
 def test_feedback_kinds_carry_a_signature_and_their_examples_are_really_signed():
-    """The examples' signatures are made with the documented example key (32 zero bytes)."""
-    keyring = signing.Keyring({"scripted": bytes(32), "terminal": bytes(32)})
+    """The examples' signatures are made with the documented example key (its seed 32 zero
+    bytes), each verified at the time it says it was signed."""
+    public = Ed25519PrivateKey.from_private_bytes(bytes(32)).public_key()
     for kind in KINDS:
         props = messages.schema(kind)["properties"]
         assert ("signature" in props) == (kind in SIGNED), kind
@@ -64,7 +66,8 @@ def test_feedback_kinds_carry_a_signature_and_their_examples_are_really_signed()
         signed = [e for e in examples if "signature" in e]
         assert signed, f"{kind}: no signed example"
         for example in signed:
-            assert keyring.verify(kind, example) == example["reviewer"]
+            keyring = signing.Keyring({"scripted": public, "terminal": public})
+            assert keyring.verify(kind, example, now=example["signed_at"]) == example["reviewer"]
     # The environment's manual (/env/manual) is not signed: the environment node is trusted.
     assert any(e.get("source") == "env" and "signature" not in e for e in messages.schema("manual")["examples"])
 

@@ -469,7 +469,7 @@ def test_only_a_trusted_reviewer_can_approve(system, tmp_path):
         assert sent.returncode == 0 and "approved: the agent now acts" in sent.stdout, sent.stderr
         feedback = wait_for(taken, timeout=30)
         assert feedback and feedback[0]["decision"] == "approve" and feedback[0]["reviewer"] == "dave"
-        assert feedback[0]["plan_id"] == plan["plan_id"] and len(feedback[0]["signature"]) == 64
+        assert feedback[0]["plan_id"] == plan["plan_id"] and len(feedback[0]["signature"]) == 128
     finally:
         errors.terminate()
         errors.wait(timeout=30)

@@ -282,7 +282,9 @@ class ReviewLoop:
                 raise FeedbackError(f"no label request {msg['request_id']} (the last is {r.requests})")
             states, actions = msg["states"], msg["actions"]
             check_labels(req, states, actions)
-            self.ledger.record(r.review_id, "labels", {"request_id": req["request_id"], "labels": len(states)})
+            signed = {k: msg[k] for k in ("reviewer", "signed_at", "nonce") if k in msg}  # who, and the replay guard
+            record = {"request_id": req["request_id"], "labels": len(states), **signed}
+            self.ledger.record(r.review_id, "labels", record)
             r.labelled_requests.add(req["request_id"])
             r.labels = (np.asarray(states, dtype=np.int64), np.asarray(actions, dtype=np.int64))
             r.request = None

@@ -81,7 +81,14 @@ class PlannerNode(JsonNode):
         )
         # The text model loads now, not on the first uncached description of a language feedback.
         encoder = FrozenTextEncoder().load()
-        self.loop = ReviewLoop(self.make_policy, encoder, self.imaginer, ports, Ledger(ledger), config)
+        book = Ledger(ledger)
+        # A restarted planner still refuses a replay of feedback it took before: the nonces of the
+        # signed records in its ledger (those within the signature window) are taken already.
+        for record in book.history():
+            signed = record["payload"]
+            if record["kind"] in ("feedback", "labels") and "nonce" in signed and "signed_at" in signed:
+                keyring.remember(signed["nonce"], signed["signed_at"])
+        self.loop = ReviewLoop(self.make_policy, encoder, self.imaginer, ports, book, config)
         self.json_subscription("lwm/status", "status", self.loop.on_status, LATCHED)
         self.json_subscription("env/state", "state", self.loop.on_state, LATCHED)
         on_feedback = verified(

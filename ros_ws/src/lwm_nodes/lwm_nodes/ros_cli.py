@@ -204,10 +204,11 @@ def _signed(args, text: str) -> str:
     payload = json.loads(text)
     if not isinstance(payload, dict):
         raise ValueError("only a JSON object can be signed")
-    key = signing.load_keys(args.keys_file).get(args.sign)
-    if key is None:
+    try:
+        key = signing.load_private_key(args.keys_file, args.sign)
+    except signing.KeyFileError as exc:
         fix = f"lwm ros keys --keys-file {args.keys_file} --reviewer {args.sign}"
-        raise ValueError(f"reviewer {args.sign!r} has no key in {args.keys_file} (add one: {fix})")
+        raise ValueError(f"{exc} (make one: {fix})") from None
     payload = signing.sign(args.kind, {"version": messages.version(args.kind), **payload}, args.sign, key)
     return json.dumps(payload)
 
@@ -217,7 +218,8 @@ def cmd_keys(args) -> int:
     from lwm_models import signing
 
     keys = signing.ensure_key_file(args.keys_file, args.reviewer or signing.DEFAULT_REVIEWERS)
-    print(f"{args.keys_file}: keys for {', '.join(sorted(keys))}")
+    here = sorted(r for r in keys if (signing.private_dir(args.keys_file) / f"{r}.key").exists())
+    print(f"{args.keys_file}: public keys of {', '.join(sorted(keys))}; private keys here of {', '.join(here)}")
     return 0
 
 
