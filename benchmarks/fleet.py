@@ -6,14 +6,15 @@ test game from seeds SEED, SEED+1, ...; agent1's reviewer first gives language f
 agent (the true manual in other words, on /feedback/manual), and each reviewer then reviews its
 agent's plans to the execution's report. Manuals are drawn from the dataset's human-written
 descriptions when they are at hand (--texts), as the shipped models were trained: the project's
-generator's text is one the shipped EMMA-LWM reads poorly (docs/language.md). With --server-host, the world-model server runs in one
-network namespace and the agents in another (two simulated hosts, traffic over a veth pair: needs
-root).
+generator's text is one the shipped EMMA-LWM reads poorly (docs/language.md). With --server-host,
+the world-model server runs in one network namespace and the agents in another (two simulated
+hosts, traffic over a veth pair: needs root).
 
-Prints and records, per fleet size: real return per agent (mean and each), reviews per minute
-(reports over the time from the first plan to the last report), the agents that re-planned under
-the fleet's manual, the world-model server's calls with their latency (p50, p99) and the mean batch
-of its one-shot calls (its load report at shutdown), and the wall time.
+Prints and records, per fleet size: real return per agent (mean and each) and wins, reviews per
+minute (reports over the time from the first plan to the last report), the agents whose review
+took the fleet's manual and those that planned under it, the world-model server's calls (and per
+second of the run) with their latency (p50, p99) and the mean batch of its one-shot calls (its load
+report at shutdown), and the wall time.
 
     flock /tmp/lwm-heavy.lock .venv/bin/python benchmarks/fleet.py --agents 1 4 8 --out results/fleet/fleet.json
 """
@@ -101,10 +102,7 @@ def run_fleet(n: int, args, work: Path) -> dict:
         manuals = [r["payload"] for r in records if r["kind"] == "manual" and r["payload"]["source"] == "human"]
         fleet_manual = fleet_manual or (manuals[0]["descriptions"] if manuals else None)
         took = any(r["kind"] == "manual" and r["payload"]["descriptions"] == fleet_manual for r in records)
-        replanned = any(
-            r["kind"] == "plan" and r["payload"]["reason"] == "manual" and r["payload"]["manual"] == fleet_manual
-            for r in records
-        )
+        replanned = any(r["kind"] == "plan" and r["payload"]["manual"] == fleet_manual for r in records)
         first_plan.append(next(r["time"] for r in records if r["kind"] == "plan"))
         last_report.append(report["time"])
         per_agent.append(
@@ -115,7 +113,7 @@ def run_fleet(n: int, args, work: Path) -> dict:
                 "outcome": report["payload"]["outcome"],
                 "plans": sum(r["kind"] == "plan" for r in records),
                 "took_fleet_manual": took,  # its review was still open when the manual came
-                "replanned_under_fleet_manual": replanned,
+                "planned_under_fleet_manual": replanned,
             }
         )
     server_log = (logs / "server" if args.server_host else logs) / "world_model.log"
@@ -130,7 +128,7 @@ def run_fleet(n: int, args, work: Path) -> dict:
         "reviews_per_minute": round(n / minutes, 2) if minutes > 0 else None,
         "won": sum(a["outcome"] == "won" for a in per_agent),
         "took_fleet_manual": sum(a["took_fleet_manual"] for a in per_agent),
-        "replanned_under_fleet_manual": sum(a["replanned_under_fleet_manual"] for a in per_agent),
+        "planned_under_fleet_manual": sum(a["planned_under_fleet_manual"] for a in per_agent),
         "world_model": load,
         "calls_per_second": round(load.get("calls", 0) / wall, 1) if load else None,
         "wall_s": round(wall, 1),
@@ -171,7 +169,7 @@ def main() -> int:
             print(
                 f"{n} agent(s): mean real return {row['mean_real_return']:+.2f} ({each}); "
                 f"won {row['won']}/{n}; {row['reviews_per_minute']} reviews/min; took the fleet's manual "
-                f"{row['took_fleet_manual']}/{n}, re-planned under it {row['replanned_under_fleet_manual']}/{n}; "
+                f"{row['took_fleet_manual']}/{n}, planned under it {row['planned_under_fleet_manual']}/{n}; "
                 f"imagine calls {wm.get('calls')} ({row['calls_per_second']}/s), "
                 f"p50 {wm.get('latency p50 ms')} ms, p99 {wm.get('latency p99 ms')} ms, "
                 f"mean one-shot batch {wm.get('mean batch')}; wall {row['wall_s']:.0f} s",

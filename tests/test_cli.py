@@ -248,7 +248,7 @@ def test_lwm_nodes_setup_declares_the_ros_command_and_every_node():
     nodes = ROOT / "ros_ws" / "src" / "lwm_nodes" / "lwm_nodes"
     scripts = dict(line.replace(" ", "").split("=") for line in points["console_scripts"])
     assert set(scripts) == {
-        f"lwm_{n}_node" for n in ("env", "world_model", "planner", "human", "recorder", "fleet_page")
+        f"lwm_{n}_node" for n in ("env", "world_model", "planner", "human", "recorder", "fleet_page", "live_view")
     }
     for target in scripts.values():
         module, function = target.split(":")

@@ -30,6 +30,7 @@ CONFIGS = {
     ],
     "lwm_recorder.yaml": ["recorder_node", "__init__"],
     "fleet_page.yaml": ["fleet_page_node", "__init__", "Signer", "_keys_file"],
+    "live_view.yaml": ["live_view_node", "__init__"],
 }
 HELPERS = {
     "__init__": "common",  # JsonNode's: every node's

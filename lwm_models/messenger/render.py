@@ -383,14 +383,14 @@ def _frames(
 
 def render_trajectory_png(
     observations: np.ndarray | Sequence[np.ndarray],
-    path: str | Path,
+    path: str | Path | None,
     rewards: Sequence[float] | np.ndarray | None = None,
     actions: Sequence[int] | np.ndarray | None = None,
     cell: int = 24,
     per_row: int = 8,
 ) -> Image.Image:
     """A trajectory as one image: frames left to right with a caption each ("t=3 right r=+0.5"),
-    wrapping after `per_row` frames so a 33-step episode stays viewable. Saved to `path`.
+    wrapping after `per_row` frames so a 33-step episode stays viewable. Saved to `path` (if given).
 
     `actions` and `rewards` may have T entries (the first a dummy) or T - 1 (see `_per_frame`).
     """
@@ -405,7 +405,8 @@ def render_trajectory_png(
     for i, frame in enumerate(frames):
         r, c = divmod(i, per_row)
         sheet.paste(frame, (gap + c * (fw + gap), gap + r * (fh + gap)))
-    sheet.save(path)
+    if path is not None:
+        sheet.save(path)
     return sheet
 
 

@@ -23,6 +23,7 @@ setup(
             "lwm_human_node = lwm_nodes.human_node:main",
             "lwm_recorder_node = lwm_nodes.recorder_node:main",
             "lwm_fleet_page_node = lwm_nodes.fleet_page_node:main",
+            "lwm_live_view_node = lwm_nodes.live_view_node:main",
         ],
         # `lwm ros`: the core's command line discovers the commands of this group (lwm_models/cli/main.py).
         "lwm_models.commands": [

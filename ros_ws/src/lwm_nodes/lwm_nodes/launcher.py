@@ -91,7 +91,7 @@ class Supervised:
                 log.flush()
                 if line.startswith("READY"):
                     self.ready.set()
-                if self.echo or line.startswith(("SUMMARY", "PAGE")):  # the outcome and the page's address
+                if self.echo or line.startswith(("SUMMARY", "PAGE", "FOXGLOVE")):  # the outcome and the addresses
                     print(stamped, flush=True)
 
     def signal(self, sig: int) -> None:
@@ -109,6 +109,7 @@ CONFIG_FILES = {
     "human": "human_feedback.yaml",
     "recorder": "lwm_recorder.yaml",
     "fleet_page": "fleet_page.yaml",
+    "live_view": "live_view.yaml",
 }
 
 
@@ -508,6 +509,14 @@ def main(argv: list[str] | None = None) -> int:
         "SEED+1, ...; with --page PORT the fleet's queue is on PORT and agent K's review page on PORT+K; with "
         "--scripted the first reviewer's language feedback goes to every agent)",
     )
+    parser.add_argument(
+        "--foxglove",
+        type=int,
+        metavar="PORT",
+        default=None,
+        help="serve a live view on a Foxglove WebSocket at localhost:PORT (the real boards, the plans, their "
+        "futures: open it in Foxglove); with --record, also written to FILE with .view.mcap in place of .mcap",
+    )
     human = parser.add_mutually_exclusive_group()
     human.add_argument("--scripted", action="store_true", help="the simulated human reviews; exits with a summary")
     human.add_argument("--no-human", action="store_true", help="start no human-feedback node")
@@ -589,6 +598,15 @@ def main(argv: list[str] | None = None) -> int:
         if unknown:
             parser.error(f"--only: unknown nodes {', '.join(sorted(unknown))} (env, world_model, planner, human)")
         nodes = [n for n in nodes if n.role in wanted or (n.role == "fleet_page" and "human" in wanted)]
+    if args.foxglove is not None:
+        view = {"port": str(args.foxglove)}
+        if args.agents > 1:
+            view["agents"] = f"[{','.join(f'agent{i + 1}' for i in range(args.agents))}]"
+        if args.record is not None:
+            view["mcap"] = str(args.record.resolve().with_suffix(".view.mcap"))
+        nodes.append(
+            NodeSpec("live_view", "lwm_nodes.live_view_node", view, config=args.config / CONFIG_FILES["live_view"])
+        )
     if args.record is not None:
         recorder = NodeSpec(
             "recorder",
