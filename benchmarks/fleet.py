@@ -81,52 +81,60 @@ def run_fleet(n: int, args, work: Path) -> dict:
         cmd = netns.in_host(b, launcher("--only", "env,planner,human", *agents))
     else:
         cmd = launcher(*agents)
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
     try:
-        proc = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=args.timeout)
+        out, _ = proc.communicate(timeout=args.timeout)
+        finished = proc.returncode == 0
+    except subprocess.TimeoutExpired:  # an agent's review never ended: stop the fleet, keep what it did
+        proc.send_signal(signal.SIGINT)
+        out, _ = proc.communicate(timeout=60)
+        finished = False
     finally:
         if server is not None:
             server.send_signal(signal.SIGINT)
             server.communicate(timeout=60)
             hosts.__exit__(None, None, None)
     wall = time.monotonic() - began
-    if proc.returncode != 0:
-        raise SystemExit(
-            f"{n} agents: launcher exited {proc.returncode}:\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}"
-        )
     names = [""] if n == 1 else [f"agent{i + 1}" for i in range(n)]
     per_agent, first_plan, last_report = [], [], []
     fleet_manual = None
     for name in names:
-        records = Ledger(logs / name / LEDGER_FILE, read_only=True).history()
-        report = next(r for r in records if r["kind"] == "report")
+        path = logs / name / LEDGER_FILE
+        records = Ledger(path, read_only=True).history() if path.is_file() else []
+        report = next((r for r in records if r["kind"] == "report"), None)
         manuals = [r["payload"] for r in records if r["kind"] == "manual" and r["payload"]["source"] == "human"]
         fleet_manual = fleet_manual or (manuals[0]["descriptions"] if manuals else None)
         took = any(r["kind"] == "manual" and r["payload"]["descriptions"] == fleet_manual for r in records)
-        replanned = any(r["kind"] == "plan" and r["payload"]["manual"] == fleet_manual for r in records)
-        first_plan.append(next(r["time"] for r in records if r["kind"] == "plan"))
-        last_report.append(report["time"])
-        per_agent.append(
-            {
-                "agent": name or "the agent",
-                "seed": args.seed + len(per_agent),
-                "real_return": report["payload"]["real_return"],
-                "outcome": report["payload"]["outcome"],
-                "plans": sum(r["kind"] == "plan" for r in records),
-                "took_fleet_manual": took,  # its review was still open when the manual came
-                "planned_under_fleet_manual": replanned,
-            }
+        planned = any(r["kind"] == "plan" and r["payload"]["manual"] == fleet_manual for r in records)
+        first_plan += [r["time"] for r in records if r["kind"] == "plan"][:1]
+        row = {"agent": name or "the agent", "seed": args.seed + len(per_agent), "reported": report is not None}
+        if report is None:  # why it did not finish, in its planner's words
+            planner_log = logs / f"{name + '.' if name else ''}planner.log"
+            failed = [line for line in planner_log.read_text().splitlines() if "job failed" in line]
+            row["failure"] = failed[-1].split("]: ", 1)[-1] if failed else "no report in the time given"
+        else:
+            last_report.append(report["time"])
+            row.update(real_return=report["payload"]["real_return"], outcome=report["payload"]["outcome"])
+        row.update(
+            plans=sum(r["kind"] == "plan" for r in records),
+            took_fleet_manual=took,  # its review was still open when the manual came
+            planned_under_fleet_manual=planned,
         )
+        per_agent.append(row)
     server_log = (logs / "server" if args.server_host else logs) / "world_model.log"
     found = LOAD.findall(server_log.read_text())
     load = json.loads(found[-1]) if found else {}
-    minutes = (max(last_report) - min(first_plan)) / 60
-    returns = [a["real_return"] for a in per_agent]
+    minutes = (max(last_report) - min(first_plan)) / 60 if last_report and first_plan else 0
+    returns = [a["real_return"] for a in per_agent if a["reported"]]
     return {
         "agents": n,
-        "mean_real_return": round(float(np.mean(returns)), 3),
+        "finished": finished and len(returns) == n,
+        "launcher_output_tail": out[-2000:] if not finished else "",
+        "mean_real_return": round(float(np.mean(returns)), 3) if returns else None,
         "per_agent": per_agent,
-        "reviews_per_minute": round(n / minutes, 2) if minutes > 0 else None,
-        "won": sum(a["outcome"] == "won" for a in per_agent),
+        "reports": len(returns),
+        "won": sum(a.get("outcome") == "won" for a in per_agent),
+        "reviews_per_minute": round(len(returns) / minutes, 2) if minutes > 0 else None,
         "took_fleet_manual": sum(a["took_fleet_manual"] for a in per_agent),
         "planned_under_fleet_manual": sum(a["planned_under_fleet_manual"] for a in per_agent),
         "world_model": load,
@@ -154,7 +162,9 @@ def main() -> int:
     p.add_argument(
         "--server-host", action="store_true", help="the world-model server in a network namespace of its own"
     )
-    p.add_argument("--timeout", type=float, default=1800.0, help="seconds one fleet may take")
+    p.add_argument(
+        "--timeout", type=float, default=900.0, help="seconds one fleet may take; then it is stopped and recorded as is"
+    )
     p.add_argument("--out", type=Path, default=None, help="write the figures here (JSON)")
     args = p.parse_args()
     if args.server_host and (why := netns.unavailable()):
@@ -164,10 +174,15 @@ def main() -> int:
         for n in args.agents:
             row = run_fleet(n, args, Path(tmp))
             rows.append(row)
+            write(args, rows)  # after each fleet: a later one that fails loses nothing
             wm = row["world_model"]
-            each = ", ".join(f"{a['real_return']:+.2f}" for a in row["per_agent"])
+            each = ", ".join(f"{a['real_return']:+.2f}" if a["reported"] else "none" for a in row["per_agent"])
+            for a in row["per_agent"]:
+                if not a["reported"]:
+                    print(f"{n} agents: {a['agent']} did not report: {a['failure']}", flush=True)
+            mean = "none" if row["mean_real_return"] is None else f"{row['mean_real_return']:+.2f}"
             print(
-                f"{n} agent(s): mean real return {row['mean_real_return']:+.2f} ({each}); "
+                f"{n} agent(s): {row['reports']} reported, mean real return {mean} ({each}); "
                 f"won {row['won']}/{n}; {row['reviews_per_minute']} reviews/min; took the fleet's manual "
                 f"{row['took_fleet_manual']}/{n}, planned under it {row['planned_under_fleet_manual']}/{n}; "
                 f"imagine calls {wm.get('calls')} ({row['calls_per_second']}/s), "
@@ -175,6 +190,12 @@ def main() -> int:
                 f"mean one-shot batch {wm.get('mean batch')}; wall {row['wall_s']:.0f} s",
                 flush=True,
             )
+    return 0 if all(r["finished"] for r in rows) else 1
+
+
+def write(args, rows: list[dict]) -> None:
+    if not args.out:
+        return
     record = {
         "command": " ".join([Path(sys.executable).name, *sys.argv]),
         "commit": git_commit(),
@@ -182,10 +203,8 @@ def main() -> int:
         "machine": {"cpus": os.cpu_count(), "python": platform.python_version()},
         "fleets": rows,
     }
-    if args.out:
-        args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.write_text(json.dumps(record, indent=1) + "\n")
-    return 0
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(record, indent=1) + "\n")
 
 
 if __name__ == "__main__":
