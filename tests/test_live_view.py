@@ -25,7 +25,9 @@ from mcap.reader import make_reader  # noqa: E402
 
 
 class FoxgloveClient:
-    """Just enough of a WebSocket client (RFC 6455) for Foxglove's JSON and binary messages."""
+    """Just enough of a WebSocket client (RFC 6455) for Foxglove's JSON and binary messages. It offers
+    both subprotocol names: the SDK's server (0.30) speaks `foxglove.sdk.v1`, earlier ones
+    `foxglove.websocket.v1`."""
 
     def __init__(self, host: str, port: int) -> None:
         self.sock = socket.create_connection((host, port), timeout=30)
@@ -34,7 +36,7 @@ class FoxgloveClient:
             (
                 f"GET / HTTP/1.1\r\nHost: {host}:{port}\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
                 f"Sec-WebSocket-Key: {key}\r\nSec-WebSocket-Version: 13\r\n"
-                "Sec-WebSocket-Protocol: foxglove.websocket.v1\r\n\r\n"
+                "Sec-WebSocket-Protocol: foxglove.sdk.v1, foxglove.websocket.v1\r\n\r\n"
             ).encode()
         )
         head = b""
