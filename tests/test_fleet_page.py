@@ -82,7 +82,7 @@ def test_one_manual_on_the_fleet_page_replans_every_agent(fleet, browser):  # no
     wait.until(lambda d: all("waits for your answer" in r[2] for r in rows(d).values()) and len(rows(d)) == 2)
     first = rows(browser)
     assert all(r[4] == "v1" and "(manual v1)" in r[3] for r in first.values()), first
-    shot(browser, tmp_path, "fleet-queue.png")
+    shot(browser, tmp_path, "fleet_page_queue.png")
 
     # A manual with a description left out: refused, in words, and nothing changes.
     browser.find_element("id", "d0").send_keys(MANUAL[0])
@@ -99,7 +99,7 @@ def test_one_manual_on_the_fleet_page_replans_every_agent(fleet, browser):  # no
     assert "agent1 (v2)" in message.text and "agent2 (v2)" in message.text, message.text
     # Both agents re-plan under the fleet's manual: each row's plan says version 2.
     wait.until(lambda d: all("(manual v2)" in r[3] and r[4] == "v2" for r in rows(d).values()))
-    shot(browser, tmp_path, "fleet-replanned.png")
+    shot(browser, tmp_path, "fleet_page.png")
 
     # Each agent's link opens its own review page, with its plan under the new manual.
     browser.find_element("css selector", "tr[data-agent='agent2'] a").click()
@@ -112,4 +112,4 @@ def test_one_manual_on_the_fleet_page_replans_every_agent(fleet, browser):  # no
         )
     )
     wait.until(lambda d: "v2" in d.find_element("id", "manual-version").text)
-    shot(browser, tmp_path, "fleet-agent2-page.png")
+    shot(browser, tmp_path, "fleet_page_agent2.png")

@@ -240,7 +240,9 @@ def test_review_in_the_browser(unnamed_page_system, browser):
     ledger = Ledger(tmp_path / "ledger.sqlite", read_only=True)
     taken = [r["payload"] for r in ledger.history() if r["kind"] == "labels"]
     ledger.close()
-    assert taken == [{"request_id": 1, "labels": 3}, {"request_id": 2, "labels": 2}]  # what the planner took
+    # What the planner took, each signed by alice (the record keeps who, when and the nonce).
+    assert [(t["request_id"], t["labels"], t["reviewer"]) for t in taken] == [(1, 3, "alice"), (2, 2, "alice")]
+    assert len({t["nonce"] for t in taken}) == 2
 
     # Teaching again, stopped at its first round: no labels asked any more, and a plan from what was learnt.
     before = title().split()[1]
@@ -463,7 +465,7 @@ def test_the_page_survives_node_restarts(page_system, browser):
         ledger = Ledger(tmp_path / "ledger.sqlite", read_only=True)
         taken = [r["payload"] for r in ledger.history() if r["kind"] == "labels"]
         ledger.close()
-        return taken
+        return [{"request_id": t["request_id"], "labels": t["labels"]} for t in taken]
 
     # Mid-labelling, two descriptions rewritten (the second still being edited): the human node dies.
     browser.find_element("id", "imitate").click()
