@@ -26,6 +26,35 @@ from .errors import LwmError
 
 STRING_TYPE = "std_msgs/msg/String"
 STRING_DEFINITION = b"string data"
+# A service call's event (service introspection, <service>/_service_event): its definition with
+# the types it uses, in rosbag2's form (each after a line of 80 '=' and "MSG: pkg/Type").
+EVENT_TYPE = "lwm_interfaces/srv/Json_Event"
+_RULE = "=" * 80
+EVENT_DEFINITION = f"""service_msgs/ServiceEventInfo info
+Json_Request[<=1] request
+Json_Response[<=1] response
+{_RULE}
+MSG: service_msgs/ServiceEventInfo
+uint8 REQUEST_SENT = 0
+uint8 REQUEST_RECEIVED = 1
+uint8 RESPONSE_SENT = 2
+uint8 RESPONSE_RECEIVED = 3
+uint8 event_type
+builtin_interfaces/Time stamp
+char[16] client_gid
+int64 sequence_number
+{_RULE}
+MSG: builtin_interfaces/Time
+int32 sec
+uint32 nanosec
+{_RULE}
+MSG: lwm_interfaces/Json_Request
+string request
+{_RULE}
+MSG: lwm_interfaces/Json_Response
+string response
+""".encode()
+DEFINITIONS = {STRING_TYPE: STRING_DEFINITION, EVENT_TYPE: EVENT_DEFINITION}
 _CDR_LE = b"\x00\x01\x00\x00"  # encapsulation: plain CDR, little endian
 
 
@@ -79,17 +108,20 @@ class Recorder:
         self._file: BinaryIO = open(self.path, "wb")  # noqa: SIM115 (closed in close())
         self._writer = Writer(self._file, compression=CompressionType.NONE)
         self._writer.start(profile="ros2", library="lwm_models.recording")
-        self._schema = self._writer.register_schema(name=STRING_TYPE, encoding="ros2msg", data=STRING_DEFINITION)
+        self._schemas: dict[str, int] = {}
         self._channels: dict[str, int] = {}
         self.counts: dict[str, int] = {}
         self._closed = False
 
-    def add_topic(self, topic: str, latched: bool) -> None:
+    def add_topic(self, topic: str, latched: bool, kind: str = STRING_TYPE) -> None:
+        """A channel for a topic of one of DEFINITIONS' types (a String topic, or a service's events)."""
+        if kind not in self._schemas:
+            self._schemas[kind] = self._writer.register_schema(name=kind, encoding="ros2msg", data=DEFINITIONS[kind])
         if topic not in self._channels:
             self._channels[topic] = self._writer.register_channel(
                 topic=topic,
                 message_encoding="cdr",
-                schema_id=self._schema,
+                schema_id=self._schemas[kind],
                 metadata={"offered_qos_profiles": qos_metadata(latched)},
             )
             self.counts[topic] = 0
@@ -115,11 +147,14 @@ class Recorder:
 
 
 def read(path: str | Path) -> Iterator[Message]:
-    """The messages of a recording in the order they were received."""
+    """The String messages of a recording in the order they were received (a service's events,
+    recorded beside them, are left out: `lwm ros play` republishes topics)."""
     try:
         with open(path, "rb") as f:
             reader = make_reader(f)
             for schema, channel, message in reader.iter_messages(log_time_order=True):
+                if schema is not None and schema.name == EVENT_TYPE:
+                    continue
                 if schema is None or schema.name != STRING_TYPE or channel.message_encoding != "cdr":
                     raise RecordingError(f"{channel.topic}: not a {STRING_TYPE} channel in CDR")
                 latched = "transient_local" in channel.metadata.get("offered_qos_profiles", "")
@@ -132,4 +167,4 @@ def read(path: str | Path) -> Iterator[Message]:
         raise RecordingError(f"{path} is not an MCAP recording: {exc}") from None
 
 
-__all__ = ["Message", "Recorder", "RecordingError", "cdr_string", "read", "string_of_cdr"]
+__all__ = ["EVENT_TYPE", "Message", "Recorder", "RecordingError", "cdr_string", "read", "string_of_cdr"]

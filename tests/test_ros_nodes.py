@@ -706,6 +706,29 @@ def test_scripted_review_loop_end_to_end_recorded_and_played_back(tmp_path):
     assert len(by_topic["/review/labels"]) == kinds.count("labels") >= 1
     assert len(by_topic["/planner/report"]) == kinds.count("report") == 1
     assert {"/env/state", "/env/manual", "/lwm/status"} <= set(by_topic)
+    # The services' requests and responses are in it too, as service events: decoded here by the
+    # mcap-ros2-support decoder from the schema in the file (its vendored parser wants type names
+    # without '_', so the test's copy of the schema says JsonRequest for Json_Request).
+    from mcap.reader import make_reader
+    from mcap.records import Schema
+    from mcap_ros2.decoder import DecoderFactory
+
+    events: dict[str, list] = {}
+    with open(path, "rb") as f:
+        for schema, channel, message in make_reader(f).iter_messages():
+            if schema.name == recording.EVENT_TYPE:
+                named = (
+                    schema.data.decode().replace("Json_Request", "JsonRequest").replace("Json_Response", "JsonResponse")
+                )
+                renamed = Schema(
+                    id=schema.id, name="lwm_interfaces/srv/JsonEvent", encoding=schema.encoding, data=named.encode()
+                )
+                events.setdefault(channel.topic, []).append(DecoderFactory().decoder_for("cdr", renamed)(message.data))
+    steps = events["/env/step/_service_event"]
+    requests = [json.loads(e.request[0].request) for e in steps if e.info.event_type == 1]  # REQUEST_RECEIVED
+    responses = [json.loads(e.response[0].response) for e in steps if e.info.event_type == 2]  # RESPONSE_SENT
+    assert requests and len(requests) == len(responses) and all("action" in r for r in requests)
+    assert all(r["ok"] for r in responses) and len(events["/lwm/imagine/_service_event"]) >= 2
     assert [m.latched for m in got if m.topic == "/planner/plan"][0] and not any(
         m.latched for m in got if m.topic == "/lwm/errors"
     )

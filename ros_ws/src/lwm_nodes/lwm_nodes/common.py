@@ -76,12 +76,29 @@ class JsonNode(Node):
         self._acks = None  # created by the first subscription that answers its senders
         self.error_count = 0
         self._last_error: tuple[float, str] | None = None  # (monotonic time, what)
+        # Service requests and responses published as events (<service>/_service_event), so that a
+        # recording holds them: "contents" (the launcher's choice with --record) or "off".
+        self.introspection = self.declare_parameter("service_introspection", "off").value
+        if self.introspection not in ("off", "contents"):
+            raise ValueError(f"service_introspection must be 'off' or 'contents', not {self.introspection!r}")
         period = float(self.declare_parameter("diagnostics_period", 1.0).value)
         if period > 0:
             from diagnostic_msgs.msg import DiagnosticArray
 
             self._diagnostics = self.create_publisher(DiagnosticArray, DIAGNOSTICS_TOPIC, EVENTS)
             self.create_timer(period, self.publish_diagnostics)
+
+    def json_service(self, name: str, callback, **kwargs):
+        """A lwm_interfaces/Json service; with `service_introspection` "contents", each request and
+        response is also published on <name>/_service_event (lwm_interfaces/srv/Json_Event)."""
+        from lwm_interfaces.srv import Json
+
+        service = self.create_service(Json, name, callback, **kwargs)
+        if self.introspection == "contents":
+            from rclpy.service_introspection import ServiceIntrospectionState
+
+            service.configure_introspection(self.get_clock(), EVENTS, ServiceIntrospectionState.CONTENTS)
+        return service
 
     def health(self) -> tuple[str, dict[str, object]]:
         """What the node says of itself on /diagnostics: a one-line message and named values.

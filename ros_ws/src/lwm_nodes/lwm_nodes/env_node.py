@@ -7,8 +7,6 @@ env_reset_request, env_step_request and env_response).
 
 from __future__ import annotations
 
-from lwm_interfaces.srv import Json
-
 from lwm_models import messages
 from lwm_models.data.session import GameSession
 from lwm_models.errors import LwmError
@@ -31,8 +29,8 @@ class EnvNode(JsonNode):
         self.session = GameSession(split, index, pools, max_steps)
         self.publish_state = self.json_publisher("env/state", "state", LATCHED)
         self.publish_manual = self.json_publisher("env/manual", "manual", LATCHED)
-        self.create_service(Json, "env/reset", self.on_reset)
-        self.create_service(Json, "env/step", self.on_step)
+        self.json_service("env/reset", self.on_reset)
+        self.json_service("env/step", self.on_step)
         self._announce(self.session.reset(seed))
         self.get_logger().info(f"serving {split}[{index}]: {self.session.env.spec}")
 

@@ -608,6 +608,9 @@ def main(argv: list[str] | None = None) -> int:
             NodeSpec("live_view", "lwm_nodes.live_view_node", view, config=args.config / CONFIG_FILES["live_view"])
         )
     if args.record is not None:
+        for node in nodes:  # their services' requests and responses, as events the recorder takes
+            if node.role in ("env", "world_model", "planner"):
+                node.params["service_introspection"] = "contents"
         recorder = NodeSpec(
             "recorder",
             "lwm_nodes.recorder_node",

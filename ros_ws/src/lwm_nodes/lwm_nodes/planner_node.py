@@ -97,7 +97,7 @@ class PlannerNode(JsonNode):
         self.json_subscription("review/feedback", "review_feedback", on_feedback, FEEDBACK, acks=True)
         on_labels = verified(keyring, "labels", self.resolve_topic_name("review/labels"), self.loop.on_labels)
         self.json_subscription("review/labels", "labels", on_labels, FEEDBACK, acks=True)
-        self.create_service(Json, "planner/history", self.on_history)
+        self.json_service("planner/history", self.on_history)
 
     def on_history(self, req, res):
         """The reviews in the ledger, or one review's records, read from a read-only connection of

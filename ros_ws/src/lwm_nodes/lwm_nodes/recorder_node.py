@@ -2,7 +2,9 @@
 (lwm_models.recording), which Foxglove and rosbag2's MCAP storage open.
 
 It discovers topics as they appear (every `discovery_period` seconds) and subscribes to each
-std_msgs/String topic raw, so a message is stored as the CDR bytes its publisher sent. A topic
+std_msgs/String topic raw, so a message is stored as the CDR bytes its publisher sent; and to each
+service's events (lwm_interfaces/srv/Json_Event on <service>/_service_event: every request and
+response, published by the nodes when the launcher records, parameter service_introspection). A topic
 whose publishers are all transient-local (the latched state topics, the kept feedback) is
 subscribed transient-local, so that what was published before the subscription matched is still
 delivered; the others volatile (a transient-local subscription would not match them). The launcher
@@ -12,10 +14,11 @@ footer before it exits.
 
 from __future__ import annotations
 
+from lwm_interfaces.srv import Json
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import String
 
-from lwm_models.recording import STRING_TYPE, Recorder
+from lwm_models.recording import EVENT_TYPE, STRING_TYPE, Recorder
 from lwm_nodes.common import JsonNode, run
 
 DEPTH = 100  # per topic: what a transient-local publisher may hand over at once is at most 50
@@ -35,7 +38,8 @@ class RecorderNode(JsonNode):
 
     def discover(self) -> None:
         for topic, types in self.get_topic_names_and_types():
-            if topic in self.subscriptions_by_topic or STRING_TYPE not in types:
+            kind = next((t for t in (STRING_TYPE, EVENT_TYPE) if t in types), None)
+            if topic in self.subscriptions_by_topic or kind is None:
                 continue
             publishers = self.get_publishers_info_by_topic(topic)
             if not publishers:
@@ -47,9 +51,10 @@ class RecorderNode(JsonNode):
                 reliability=ReliabilityPolicy.RELIABLE,
                 durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE,
             )
-            self.recorder.add_topic(topic, latched)
+            self.recorder.add_topic(topic, latched, kind)
+            message_type = String if kind == STRING_TYPE else Json.Event
             self.subscriptions_by_topic[topic] = self.create_subscription(
-                String, topic, lambda data, topic=topic: self.on_message(topic, data), qos, raw=True
+                message_type, topic, lambda data, topic=topic: self.on_message(topic, data), qos, raw=True
             )
             self.get_logger().info(f"recording {topic} ({'latched' if latched else 'volatile'})")
 

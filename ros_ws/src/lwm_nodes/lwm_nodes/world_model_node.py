@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import json
 
-from lwm_interfaces.srv import Json
 from rclpy.callback_groups import ReentrantCallbackGroup
 
 from lwm_models.world.imagine_server import WorkerImagineServer
@@ -74,8 +73,7 @@ class SimulatorNode(JsonNode):
             self.json_subscription(
                 agent_topic(agent, "env/manual"), "manual", lambda p, a=agent: self.on_env_manual(p, a), LATCHED
             )
-            self.create_service(
-                Json,
+            self.json_service(
                 agent_topic(agent, "lwm/imagine"),
                 lambda req, res, a=agent: self.on_imagine(req, res, a),
                 callback_group=ReentrantCallbackGroup(),
