@@ -141,8 +141,8 @@ CASES: list[tuple[str, list[str], str]] = [
     ("ledger unknown review", ["ledger", "show", "--path", "{tmp}/ledger.sqlite", "--review", "r9"], "no review 'r9'"),
     # ros: with lwm_nodes installed argparse rejects the subcommand; without, the hint says what to install
     ("ros unknown subcommand", ["ros", "bogus"], "lwm ros: error:"),
-    # a key file others may read: anyone could sign as its reviewers
-    ("ros keys readable by others", ["ros", "keys", "--keys-file", "{tmp}/malformed.json"], "chmod 600 it"),
+    # a file that is not a key file: refused in one line, never overwritten
+    ("ros keys not a key file", ["ros", "keys", "--keys-file", "{tmp}/malformed.json"], "malformed.json: not JSON"),
 ]
 
 
