@@ -724,11 +724,13 @@ def test_scripted_review_loop_end_to_end_recorded_and_played_back(tmp_path):
                     id=schema.id, name="lwm_interfaces/srv/JsonEvent", encoding=schema.encoding, data=named.encode()
                 )
                 events.setdefault(channel.topic, []).append(DecoderFactory().decoder_for("cdr", renamed)(message.data))
-    steps = events["/env/step/_service_event"]
-    requests = [json.loads(e.request[0].request) for e in steps if e.info.event_type == 1]  # REQUEST_RECEIVED
-    responses = [json.loads(e.response[0].response) for e in steps if e.info.event_type == 2]  # RESPONSE_SENT
-    assert requests and len(requests) == len(responses) and all("action" in r for r in requests)
-    assert all(r["ok"] for r in responses) and len(events["/lwm/imagine/_service_event"]) >= 2
+    calls = events["/lwm/imagine/_service_event"]  # the planner imagines through it in every review
+    requests = [json.loads(e.request[0].request) for e in calls if e.info.event_type == 1]  # REQUEST_RECEIVED
+    responses = [json.loads(e.response[0].response) for e in calls if e.info.event_type == 2]  # RESPONSE_SENT
+    assert requests and len(requests) == len(responses)
+    assert {r.get("op", "imagine") for r in requests} >= {"open", "step"} and all(r["ok"] for r in responses)
+    by_call = {e.info.sequence_number for e in calls if e.info.event_type == 1}
+    assert by_call == {e.info.sequence_number for e in calls if e.info.event_type == 2}  # each answered
     assert [m.latched for m in got if m.topic == "/planner/plan"][0] and not any(
         m.latched for m in got if m.topic == "/lwm/errors"
     )
