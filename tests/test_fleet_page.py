@@ -99,7 +99,7 @@ def test_one_manual_on_the_fleet_page_replans_every_agent(fleet, browser):  # no
     assert "agent1 (v2)" in message.text and "agent2 (v2)" in message.text, message.text
     # Both agents re-plan under the fleet's manual: each row's plan says version 2.
     wait.until(lambda d: all("(manual v2)" in r[3] and r[4] == "v2" for r in rows(d).values()))
-    shot(browser, tmp_path, "fleet_page.png")
+    shot(browser, tmp_path, "fleet_page_two_agents.png")
 
     # Each agent's link opens its own review page, with its plan under the new manual.
     browser.find_element("css selector", "tr[data-agent='agent2'] a").click()
