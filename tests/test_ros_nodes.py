@@ -97,6 +97,7 @@ def signed(system, reviewer: str = "terminal") -> list[str]:
 def call(system, service: str, payload: dict | str) -> dict:
     text = payload if isinstance(payload, str) else json.dumps(payload)
     proc = lwm_ros(system, "call", service, text, "--raw")
+    assert proc.stdout.strip(), f"no answer from {service}: {proc.stderr}"
     answer = json.loads(proc.stdout.strip().splitlines()[-1])
     # A refusal ("ok": false) exits 1 with the reason on stderr; anything else exits 0.
     assert proc.returncode == (1 if answer.get("ok") is False else 0), proc.stderr
