@@ -17,7 +17,14 @@ NODES = Path(__file__).resolve().parents[1] / "ros_ws" / "src" / "lwm_nodes"
 # class, and JsonNode's __init__) of lwm_nodes that declare parameters for the nodes that call them.
 CONFIGS = {
     "messenger_env.yaml": ["env_node", "__init__"],
-    "lwm_world_model.yaml": ["world_model_node", "__init__", "declare_threads", "declare_keyring", "_keys_file"],
+    "lwm_world_model.yaml": [
+        "world_model_node",
+        "__init__",
+        "declare_agents",
+        "declare_threads",
+        "declare_keyring",
+        "_keys_file",
+    ],
     "planner.yaml": ["planner_node", "__init__", "declare_threads", "declare_keyring", "_keys_file"],
     "human_feedback.yaml": [
         "human_node",
@@ -30,10 +37,11 @@ CONFIGS = {
     ],
     "lwm_recorder.yaml": ["recorder_node", "__init__"],
     "fleet_page.yaml": ["fleet_page_node", "__init__", "Signer", "_keys_file"],
-    "live_view.yaml": ["live_view_node", "__init__"],
+    "live_view.yaml": ["live_view_node", "__init__", "declare_agents"],
 }
 HELPERS = {
     "__init__": "common",  # JsonNode's: every node's
+    "declare_agents": "common",
     "declare_threads": "common",
     "declare_keyring": "trust",
     "Signer": "trust",

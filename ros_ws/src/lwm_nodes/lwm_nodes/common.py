@@ -252,6 +252,17 @@ class Answers:
             return sum(entry["ack"] is None for entry in self._sent.values())
 
 
+def agent_topic(agent: str, name: str) -> str:
+    """A fleet agent's topic or service, relative to the node's namespace ("" names the node's own)."""
+    return f"{agent}/{name}" if agent else name
+
+
+def declare_agents(node: Node) -> list[str]:
+    """Parameter `agents`: the agents a node serves, their namespaces without slashes; [""] (the
+    default) is the single agent in the node's own namespace."""
+    return [a.strip("/") for a in node.declare_parameter("agents", [""]).value] or [""]
+
+
 def make_executor(threads: int = 1) -> Executor:
     """The executor every process of the system spins: rclpy's EventsExecutor (C++, event driven)
     unless LWM_EXECUTOR=single asks for the pure-Python SingleThreadedExecutor. The events one cut

@@ -18,7 +18,7 @@ import threading
 import time
 from pathlib import Path
 
-from lwm_nodes.common import FEEDBACK, LATCHED, Answers, JsonNode, run
+from lwm_nodes.common import FEEDBACK, LATCHED, Answers, JsonNode, agent_topic, run
 from lwm_nodes.review_page import ReviewPage, reply
 from lwm_nodes.trust import Signer
 
@@ -101,7 +101,7 @@ class FleetPageNode(JsonNode):
             )
         }
         for a in agents:
-            publish = self.json_publisher(f"{a}/feedback/manual", "manual", LATCHED)
+            publish = self.json_publisher(agent_topic(a, "feedback/manual"), "manual", LATCHED)
             self.manual_to[a] = self.answers.sender(self.signer.publisher(publish, "manual"))
             for topic, kind, field, qos in (
                 ("env/state", "state", "state", LATCHED),
@@ -112,7 +112,9 @@ class FleetPageNode(JsonNode):
                 ("planner/report", "execution_report", "report", LATCHED),
                 ("lwm/status", "status", "status", LATCHED),
             ):
-                self.json_subscription(f"{a}/{topic}", kind, lambda m, a=a, f=field: self.on_message(a, f, m), qos)
+                self.json_subscription(
+                    agent_topic(a, topic), kind, lambda m, a=a, f=field: self.on_message(a, f, m), qos
+                )
         self.page = ReviewPage(
             host,
             port,
@@ -174,11 +176,7 @@ class FleetPageNode(JsonNode):
         return reply(self.answers.wait(msg_id, ANSWER_WAIT_S), "the world-model server", ANSWER_WAIT_S)
 
     def on_reviewer(self, body: dict) -> str:
-        name = body.get("reviewer")
-        if not isinstance(name, str) or not name.strip():
-            raise ValueError("type your name: 1-64 letters, digits, '_', '.' or '-'")
-        who = self.signer.become(name.strip())
-        self.page.set_reviewer(who)
+        who = self.page.become(body, self.signer)
         return f"you write manuals as {who}: they are signed with your own key"
 
     def close(self) -> None:

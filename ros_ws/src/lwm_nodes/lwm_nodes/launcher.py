@@ -156,21 +156,22 @@ def fleet(nodes: list[NodeSpec], agents: int, seed: int, log_dir: Path) -> list[
     LOG_DIR/<agent>/. The first agent's reviewer sends its language feedback to every agent
     (/feedback/manual): one manual re-plans the fleet."""
     names = [f"agent{i + 1}" for i in range(agents)]
+    every = f"[{','.join(names)}]"  # the `agents` parameter of the nodes that serve them all
     out = []
     for spec in nodes:
-        if spec.role == "world_model":
-            out.append(replace(spec, params={**spec.params, "agents": f"[{','.join(names)}]"}))
+        if spec.role in ("world_model", "live_view"):
+            out.append(replace(spec, params={**spec.params, "agents": every}))
         elif spec.role == "recorder":
             out.append(spec)
         elif spec.role == "human" and "page_port" in spec.params:  # the person's fleet page, on PORT
             port = int(spec.params["page_port"])
-            params = {"agents": f"[{','.join(names)}]", "page_port": str(port), "first_agent_port": str(port + 1)}
+            params = {"agents": every, "page_port": str(port), "first_agent_port": str(port + 1)}
             params.update({k: v for k, v in spec.params.items() if k in ("keys_file", "page_host")})
             config = spec.config.with_name(CONFIG_FILES["fleet_page"]) if spec.config else None
             out.append(NodeSpec("fleet_page", "lwm_nodes.fleet_page_node", params, config=config))
     for i, agent in enumerate(names):
         for spec in nodes:
-            if spec.role in ("world_model", "recorder"):
+            if spec.role in ("world_model", "live_view", "recorder"):
                 continue
             params = dict(spec.params)
             if spec.role == "env":
@@ -381,9 +382,9 @@ def main(argv: list[str] | None = None) -> int:
         "--config",
         type=Path,
         default=CONFIG_DIR,
-        help="directory of the nodes' parameter files (messenger_env.yaml, lwm_world_model.yaml, planner.yaml, "
-        "human_feedback.yaml, lwm_recorder.yaml), each passed to its node with --params-file; the options below "
-        "override single values (default: the lwm_nodes package's config/)",
+        help="directory of the nodes' parameter files (one YAML file per node, as in the lwm_nodes package's "
+        "config/), each passed to its node with --params-file; the options below override single values "
+        "(default: the package's config/)",
     )
     parser.add_argument("--split", default=None, help="split of the game the environment runs (default: newall-test)")
     parser.add_argument("--index", type=int, default=None, help="game index in the split (default 0)")
@@ -589,6 +590,13 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(str(exc))
     print(f"launcher: reviewer keys for {', '.join(sorted(keys))} in {keys_file}", flush=True)
     nodes = default_nodes(human, given_parameters(args, human, ledger, state, keys_file, person), args.config)
+    if args.foxglove is not None:
+        view = {"port": str(args.foxglove)}
+        if args.record is not None:
+            view["mcap"] = str(args.record.resolve().with_suffix(".view.mcap"))
+        nodes.append(
+            NodeSpec("live_view", "lwm_nodes.live_view_node", view, config=args.config / CONFIG_FILES["live_view"])
+        )
     if args.agents > 1:
         seed = args.seed if args.seed is not None else int(config_value(args.config, "env", "seed") or 0)
         nodes = fleet(nodes, args.agents, seed, args.log_dir)
@@ -597,16 +605,9 @@ def main(argv: list[str] | None = None) -> int:
         unknown = wanted - {"env", "world_model", "planner", "human"}
         if unknown:
             parser.error(f"--only: unknown nodes {', '.join(sorted(unknown))} (env, world_model, planner, human)")
-        nodes = [n for n in nodes if n.role in wanted or (n.role == "fleet_page" and "human" in wanted)]
-    if args.foxglove is not None:
-        view = {"port": str(args.foxglove)}
-        if args.agents > 1:
-            view["agents"] = f"[{','.join(f'agent{i + 1}' for i in range(args.agents))}]"
-        if args.record is not None:
-            view["mcap"] = str(args.record.resolve().with_suffix(".view.mcap"))
-        nodes.append(
-            NodeSpec("live_view", "lwm_nodes.live_view_node", view, config=args.config / CONFIG_FILES["live_view"])
-        )
+        # The live view, asked for by --foxglove, runs wherever it was asked; the fleet page goes with `human`.
+        kept = {"live_view", *(["fleet_page"] if "human" in wanted else [])}
+        nodes = [n for n in nodes if n.role in wanted or n.role in kept]
     if args.record is not None:
         for node in nodes:  # their services' requests and responses, as events the recorder takes
             if node.role in ("env", "world_model", "planner"):

@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from lwm_models.messenger.render import render_png, render_trajectory_png
-from lwm_nodes.common import LATCHED, JsonNode, run
+from lwm_nodes.common import LATCHED, JsonNode, agent_topic, declare_agents, run
 
 CELL_PX = 24
 
@@ -30,7 +30,7 @@ class LiveViewNode(JsonNode):
         from foxglove.channels import RawImageChannel
 
         p = self.declare_parameter
-        agents = [a.strip("/") for a in p("agents", [""]).value] or [""]
+        agents = declare_agents(self)
         host = p("host", "127.0.0.1").value
         port = int(p("port", 8770).value)
         mcap = p("mcap", "").value  # also write what it shows to this MCAP file
@@ -43,12 +43,14 @@ class LiveViewNode(JsonNode):
             prefix = f"/{agent}" if agent else ""
             for name in ("board", "plan"):
                 self.images[f"{prefix}/{name}"] = RawImageChannel(f"{prefix}/{name}")
-            self.json_subscription(f"{agent}/env/state" if agent else "env/state", "state",
-                                   lambda m, pre=prefix: self.on_state(pre, m), LATCHED)  # fmt: skip
-            self.json_subscription(f"{agent}/planner/plan" if agent else "planner/plan", "plan",
-                                   lambda m, pre=prefix: self.on_plan(pre, m), LATCHED)  # fmt: skip
-            self.json_subscription(f"{agent}/planner/report" if agent else "planner/report", "execution_report",
-                                   lambda m, pre=prefix: self.on_report(pre, m), LATCHED)  # fmt: skip
+            for topic, kind, handle in (
+                ("env/state", "state", self.on_state),
+                ("planner/plan", "plan", self.on_plan),
+                ("planner/report", "execution_report", self.on_report),
+            ):
+                self.json_subscription(
+                    agent_topic(agent, topic), kind, lambda m, pre=prefix, handle=handle: handle(pre, m), LATCHED
+                )
         self.shown = 0
         print(f"FOXGLOVE live view at ws://{host}:{self.server.port}", flush=True)
 

@@ -136,12 +136,8 @@ class PageReviewer(Reviewer):
 
     def on_reviewer(self, body: dict) -> str:
         """The person says who they are: their answers are signed with their own key."""
-        name = body.get("reviewer")
-        if not isinstance(name, str) or not name.strip():
-            raise ValueError("type your name: 1-64 letters, digits, '_', '.' or '-'")
-        who = self.node.signer.become(name.strip())
+        who = self.page.become(body, self.node.signer)
         self.node.get_logger().info(f"page: the reviewer is now {who!r}")
-        self.page.set_reviewer(who)
         return f"you answer as {who}: your answers are signed with your own key"
 
     def history(self, review_id: str | None) -> dict:

@@ -113,6 +113,16 @@ class ReviewPage:
         self.reviewer = reviewer
         self.push("reviewer", {"reviewer": reviewer})
 
+    def become(self, body: dict, signer) -> str:
+        """The person said who they are (POST /api/reviewer): `signer` (lwm_nodes.trust.Signer)
+        signs as them from now on and every open page hears it. Returns their reviewer id."""
+        name = body.get("reviewer")
+        if not isinstance(name, str) or not name.strip():
+            raise ValueError("type your name: 1-64 letters, digits, '_', '.' or '-'")
+        who = signer.become(name.strip())
+        self.set_reviewer(who)
+        return who
+
     def snapshot(self) -> dict[str, dict | None]:
         with self._lock:
             return dict(self._state)

@@ -29,15 +29,10 @@ from rclpy.callback_groups import ReentrantCallbackGroup
 
 from lwm_models.world.imagine_server import WorkerImagineServer
 from lwm_models.world.model_server import WorldModelServer
-from lwm_nodes.common import LATCHED, JsonNode, run
+from lwm_nodes.common import LATCHED, JsonNode, agent_topic, declare_agents, run
 from lwm_nodes.trust import declare_keyring, verified
 
 SERVICE_THREADS = 16  # executor threads of the node: calls that can wait for a batch at once
-
-
-def agent_topic(agent: str, name: str) -> str:
-    """An agent's topic or service, relative to the server's namespace."""
-    return f"{agent}/{name}" if agent else name
 
 
 class SimulatorNode(JsonNode):
@@ -48,7 +43,7 @@ class SimulatorNode(JsonNode):
         state = self.declare_parameter("state", "").value  # JSON file keeping manuals and versions
         self.follow_env = self.declare_parameter("follow_env_manual", True).value
         max_sessions = int(self.declare_parameter("max_sessions", 32).value)
-        agents = [a.strip("/") for a in self.declare_parameter("agents", [""]).value] or [""]
+        agents = declare_agents(self)
         self.sim = WorldModelServer(
             checkpoint or None, state_path=state or None, max_sessions=max_sessions, agents=agents
         )
