@@ -56,6 +56,8 @@ def run(args: argparse.Namespace) -> list[dict]:
     ds = TrajectoryDataset(args.data, args.split)
     episode_games = np.asarray(ds.episode_games)
     batch = {"batch": args.batch} if args.batch else {}
+    if args.overlap is not None:
+        batch["overlap"] = args.overlap
     setting = {
         k: v
         for k, v in Teaching(args.rounds, args.episodes, args.grad_steps, **batch).__dict__.items()
@@ -240,6 +242,12 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--episodes", type=int, default=32)
     p.add_argument("--grad-steps", type=int, default=20)
     p.add_argument("--batch", type=int, default=None, help="labelled states per minibatch step (default: Teaching's)")
+    p.add_argument(
+        "--overlap",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="imagine each round while the policy learns from the last (default: Teaching's)",
+    )
     p.add_argument("--policy", type=Path, default=None, help="warm-start policy (default: shipped)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--threads", type=int, default=1, help="torch threads (1: records reproduce)")

@@ -56,6 +56,8 @@ def run_game(index: int, seed: int, args, work: Path) -> dict:
     cmd += ["--constrained-learning"] if args.constrained_learning else []
     if args.iterations:
         cmd += ["--iterations", str(args.iterations)]
+    if args.config:
+        cmd += ["--config", str(args.config)]
     env = {
         **os.environ,
         "ROS_DOMAIN_ID": str(args.domain or domains.claim()),
@@ -164,6 +166,9 @@ def main() -> int:
         "--domain", type=int, default=0, help="ROS_DOMAIN_ID of the benchmark's systems (0: one no other run holds)"
     )
     p.add_argument("--timeout", type=float, default=900.0, help="seconds per game")
+    p.add_argument(
+        "--config", type=Path, default=None, help="the nodes' parameter files (run_nodes.sh --config; default: the package's)"
+    )
     args = p.parse_args()
     n = len(load_split(args.split))
     games = np.linspace(0, n - 1, min(args.games, n)).round().astype(int)

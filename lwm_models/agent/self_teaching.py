@@ -16,12 +16,18 @@ the manual clearly the belief is sure and nothing is asked.
 
 A world model that misreads the manual can be confidently wrong: its belief is trusted only so far
 (roles.TRUST), so that it still asks, and a person's first few answers are what shows it.
+
+With `Teaching.overlap` the policy learns from round u while round u+1 is imagined by the policy
+as it was before that learning (a round behind). On the real system the two run on two cores: the
+world-model server imagines while the planner learns.
 """
 
 from __future__ import annotations
 
+import copy
 import time
 from collections.abc import Callable
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -59,6 +65,13 @@ class Teaching:
         default=0.05, metadata={"help": "ask about a state only when the belief's assignments disagree this much"}
     )
     constrained: bool = field(default=False, metadata={"help": "imagine under the game's rules"})
+    overlap: bool = field(
+        default=False,
+        metadata={
+            "help": "imagine round u+1 while the policy learns from round u (round u+1 acts with the policy "
+            "a round behind)"
+        },
+    )
     fill: bool = field(
         default=False,
         metadata={
@@ -166,51 +179,79 @@ def teach(
     gen = torch.Generator().manual_seed(seed)
     opt = torch.optim.Adam(policy.parameters(), lr=config.lr)
     own_hist, own_obs, own_steps = [], [], []  # states the agent labels itself (again, each round)
+    own_labels: list[np.ndarray] = []  # their labels under the belief as it was last
     their_hist, their_labels = [], []  # states the person labelled
-    for u in range(config.rounds):
-        if should_stop():
-            break
-        manual = policy_manual() if callable(policy_manual) else policy_manual
-        began = time.perf_counter()
-        im = imagine_round(
-            policy, imaginer, manual, starts, config.episodes, rng, gen, seed * 10_000 + u, 32, config.constrained
-        )
-        hist, obs, steps, traj = imagined_states(im, 32)
-        began = spend("imagine", began)
+    # With overlap a copy acts in imagination while `policy` learns in a thread of its own.
+    acting = copy.deepcopy(policy).eval() if config.overlap else policy
+    pool = ThreadPoolExecutor(1, thread_name_prefix="teaching-fit") if config.overlap else None
+    learning: Future | None = None
+    try:
+        for u in range(config.rounds):
+            if should_stop():
+                break
+            manual = policy_manual() if callable(policy_manual) else policy_manual
+            began = time.perf_counter()
+            im = imagine_round(
+                acting, imaginer, manual, starts, config.episodes, rng, gen, seed * 10_000 + u, 32, config.constrained
+            )
+            hist, obs, steps, traj = imagined_states(im, 32)
+            began = spend("imagine", began)
 
-        keep = np.ones(len(obs), dtype=bool)
-        room = min(config.per_round, config.label_budget - result.asked)
-        if ask is not None and room > 0:
-            chosen = choose_questions(belief, obs, room, config.ask_above)
-            if config.fill and len(chosen) < room:
-                chosen = _with_unsure(policy, manual, hist, obs, chosen, room)
-            if len(chosen):
-                answers = np.asarray(ask(hist[chosen], obs[chosen], steps[chosen], traj[chosen], u + 1), dtype=np.int64)
-                result.asked += len(chosen)
-                given = answers >= 0
-                result.answered += int(given.sum())
-                if given.any():
-                    at = chosen[given]
-                    belief.update(obs[at], answers[given])
-                    their_hist.append(hist[at])
-                    their_labels.append(answers[given])
-                    keep[at] = False
-            began = spend("ask", began)
-        own_hist.append(hist[keep])
-        own_obs.append(obs[keep])
-        own_steps.append(steps[keep])
+            keep = np.ones(len(obs), dtype=bool)
+            moved = False  # whether a person's answer moved the belief this round
+            room = min(config.per_round, config.label_budget - result.asked)
+            if ask is not None and room > 0:
+                chosen = choose_questions(belief, obs, room, config.ask_above)
+                if config.fill and len(chosen) < room:
+                    chosen = _with_unsure(acting, manual, hist, obs, chosen, room)
+                if len(chosen):
+                    asked = ask(hist[chosen], obs[chosen], steps[chosen], traj[chosen], u + 1)
+                    answers = np.asarray(asked, dtype=np.int64)
+                    result.asked += len(chosen)
+                    given = answers >= 0
+                    result.answered += int(given.sum())
+                    if given.any():
+                        at = chosen[given]
+                        belief.update(obs[at], answers[given])
+                        moved = True
+                        their_hist.append(hist[at])
+                        their_labels.append(answers[given])
+                        keep[at] = False
+                began = spend("ask", began)
+            own_hist.append(hist[keep])
+            own_obs.append(obs[keep])
+            own_steps.append(steps[keep])
 
-        # Every self-made label is made again under the belief as it is now.
-        labels = belief.labels(np.concatenate(own_obs), np.concatenate(own_steps) + 1, seed)
-        h = np.concatenate(own_hist + their_hist)
-        y = np.concatenate([labels, *their_labels]).astype(np.int64)
-        began = spend("label", began)
-        fit_labels(policy, manual, h, y, config.grad_steps, config.lr, config.batch, seed * 10_000 + u, opt)
-        spend("fit", began)
-        result.rounds = u + 1
-        result.self_labelled = len(labels)
-        if on_round is not None:
-            on_round(u + 1, result)
+            # Every self-made label is made again under the belief as it is now. A label depends
+            # on its state and the belief alone, so while no answer moves the belief, the earlier
+            # rounds' labels stand and only the new round's states are labelled.
+            if moved:
+                own_labels = [belief.labels(o, s + 1, seed) for o, s in zip(own_obs[:-1], own_steps[:-1])]
+            own_labels.append(belief.labels(own_obs[-1], own_steps[-1] + 1, seed))
+            labels = np.concatenate(own_labels)
+            h = np.concatenate(own_hist + their_hist)
+            y = np.concatenate([labels, *their_labels]).astype(np.int64)
+            began = spend("label", began)
+            fit = (policy, manual, h, y, config.grad_steps, config.lr, config.batch, seed * 10_000 + u, opt)
+            if pool is None:
+                fit_labels(*fit)
+            else:
+                if learning is not None:
+                    learning.result()  # the last round's learning; what it did not overlap counts as fitting
+                acting.load_state_dict(policy.state_dict())
+                learning = pool.submit(fit_labels, *fit)
+            spend("fit", began)
+            result.rounds = u + 1
+            result.self_labelled = len(labels)
+            if on_round is not None:
+                on_round(u + 1, result)
+        if learning is not None:
+            began = time.perf_counter()
+            learning.result()
+            spend("fit", began)
+    finally:
+        if pool is not None:
+            pool.shutdown(wait=True)
     if their_labels:
         result.taught = (np.concatenate(their_hist), np.concatenate(their_labels))
     return result

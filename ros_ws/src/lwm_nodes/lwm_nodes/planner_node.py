@@ -53,6 +53,7 @@ class PlannerNode(JsonNode):
             grad_steps=int(p("grad_steps", Teaching.grad_steps).value),
             per_round=int(p("labels_per_round", Teaching.per_round).value),
             constrained=constrained_learning,
+            overlap=bool(p("overlap_learning", Teaching.overlap).value),
         )
         config = ReviewConfig(
             futures=int(p("futures", ReviewConfig.futures).value),
