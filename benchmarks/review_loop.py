@@ -167,7 +167,10 @@ def main() -> int:
     )
     p.add_argument("--timeout", type=float, default=900.0, help="seconds per game")
     p.add_argument(
-        "--config", type=Path, default=None, help="the nodes' parameter files (run_nodes.sh --config; default: the package's)"
+        "--config",
+        type=Path,
+        default=None,
+        help="the nodes' parameter files (run_nodes.sh --config; default: the package's)",
     )
     args = p.parse_args()
     n = len(load_split(args.split))
