@@ -58,6 +58,8 @@ def run_game(index: int, seed: int, args, work: Path) -> dict:
         cmd += ["--iterations", str(args.iterations)]
     if args.config:
         cmd += ["--config", str(args.config)]
+    if args.checkpoint:
+        cmd += ["--checkpoint", str(args.checkpoint)]
     env = {
         **os.environ,
         "ROS_DOMAIN_ID": str(args.domain or domains.claim()),
@@ -172,6 +174,9 @@ def main() -> int:
         default=None,
         help="the nodes' parameter files (run_nodes.sh --config; default: the package's)",
     )
+    p.add_argument(
+        "--checkpoint", type=Path, default=None, help="the world model the server serves (default: shipped EMMA-LWM)"
+    )
     args = p.parse_args()
     n = len(load_split(args.split))
     games = np.linspace(0, n - 1, min(args.games, n)).round().astype(int)
@@ -211,8 +216,9 @@ def main() -> int:
             f"({over / c * 1000:.2f} ms per call, {over / server:.1%})"
         )
     if args.records.is_file():
-        # Only records of the world model the world-model server served (the shipped EMMA-LWM's weights).
-        shipped = json.loads((SHIPPED["emma"] / "config.json").read_text())["sha256"]
+        # Only records of the world model the world-model server served (by its weights' hash).
+        served = args.checkpoint or SHIPPED["emma"]
+        shipped = json.loads((served / "config.json").read_text()).get("sha256", "")
         table = {
             rec["game"]: rec["return"]
             for rec in map(json.loads, args.records.read_text().splitlines())
@@ -220,7 +226,7 @@ def main() -> int:
             and rec.get("checkpoint") == shipped
         }  # fmt: skip
         if not table:
-            print(f"no Table 3 records of the shipped EMMA-LWM ({shipped[:12]}) in {args.records}")
+            print(f"no Table 3 records of the world model served ({shipped[:12]}) in {args.records}")
         both = [x for x in rows if x["game"] in table]
         if both:
             t3 = np.mean([table[x["game"]] for x in both])

@@ -500,7 +500,10 @@ class ReviewLoop:
         reviewer about teaching.per_round states a round: those the role assignments still in
         play disagree on, then those its policy is least sure of."""
         # The reviewer chose to teach: every round shows them states, even once the roles are settled.
-        teaching = Teaching(**{**self.config.teaching.__dict__, "rounds": rounds, "fill": True})
+        # The rounds go in turn, so that a round's answers shape the very next round: overlapped, the
+        # scripted reviews needed more labels (80 a game against 60) and one of five ended without a
+        # plan it approved (docs/speed.md, "Imagining while learning").
+        teaching = Teaching(**{**self.config.teaching.__dict__, "rounds": rounds, "fill": True, "overlap": False})
         teaching.label_budget = rounds * teaching.per_round
         stopped = {"now": False}
 
