@@ -66,7 +66,8 @@ class Teaching:
     )
     constrained: bool = field(default=False, metadata={"help": "imagine under the game's rules"})
     # On: the same real return on Table 3's 30 NewAll games (manual alone, and 10 labels), paired with
-    # the rounds in turn, and a quarter less wait on the real system (docs/speed.md, "Learning").
+    # the rounds in turn, and a third less wait on the real system (docs/speed.md, "Imagining while
+    # learning").
     overlap: bool = field(
         default=True,
         metadata={
