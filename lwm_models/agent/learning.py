@@ -306,6 +306,43 @@ class LabelledSet:
         return out
 
 
+class LearningBehind:
+    """Learning a round behind acting. Overlapped, a copy of the policy (`acting`) imagines round
+    u+1 while the policy itself learns from round u in a second thread (torch releases the GIL in
+    its kernels, and the world model may be another process), as in asynchronous DAgger; the copy
+    takes the policy's weights each time a round's learning has ended. Not overlapped, `acting` is
+    the policy and learning runs where it is called."""
+
+    def __init__(self, policy: EmmaPolicy, overlap: bool, thread_name: str) -> None:
+        self.policy = policy
+        self.acting = copy.deepcopy(policy).eval() if overlap else policy
+        self._pool = ThreadPoolExecutor(1, thread_name_prefix=thread_name) if overlap else None
+        self._learning: Future | None = None
+
+    def learn(self, fn: Callable[..., object], *args) -> None:
+        """fn(*args), the learning of a round: here, or overlapped, after the last round's learning
+        ended, in the learning thread."""
+        if self._pool is None:
+            fn(*args)
+            return
+        self.wait()
+        self._learning = self._pool.submit(fn, *args)
+
+    def wait(self) -> bool:
+        """Wait for the round being learnt, if any (re-raising what failed in it), and give the
+        acting copy its weights; True when there was one."""
+        if self._learning is None:
+            return False
+        learning, self._learning = self._learning, None
+        learning.result()
+        self.acting.load_state_dict(self.policy.state_dict())
+        return True
+
+    def close(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(wait=True)
+
+
 def online_imitation(
     policy: EmmaPolicy,
     imaginer,
@@ -336,12 +373,7 @@ def online_imitation(
     labelled = labelled if labelled is not None else LabelledSet()
     timings = timings if timings is not None else {}
     losses: list[float] = []
-    # With overlap, a copy of the policy acts in imagination while the policy itself learns in a
-    # second thread (torch releases the GIL in its kernels, and the world model may be another
-    # process): the acting copy is one round behind, as in asynchronous DAgger.
-    acting = copy.deepcopy(policy).eval() if budget.overlap else policy
-    pool = ThreadPoolExecutor(1, thread_name_prefix="imitation-fit") if budget.overlap else None
-    learning: Future | None = None
+    behind = LearningBehind(policy, budget.overlap, "imitation-fit")
 
     def spend(what: str, since: float) -> float:
         now = time.perf_counter()
@@ -364,13 +396,9 @@ def online_imitation(
             on_round(u + 1, losses[-1], len(labelled))
 
     def finish_learning() -> None:
-        nonlocal learning
-        if learning is not None:
-            began = time.perf_counter()
-            learning, done = None, learning
-            done.result()  # re-raises what failed in the learning thread
+        began = time.perf_counter()
+        if behind.wait():
             spend("wait", began)
-            acting.load_state_dict(policy.state_dict())
 
     try:
         for u in range(budget.iterations):
@@ -379,21 +407,18 @@ def online_imitation(
             manual = policy_manual() if callable(policy_manual) else policy_manual
             began = time.perf_counter()
             im = imagine_round(
-                acting, imaginer, manual, starts, budget.episodes, rng, gen, seed * 10_000 + u, max_steps,
+                behind.acting, imaginer, manual, starts, budget.episodes, rng, gen, seed * 10_000 + u, max_steps,
                 budget.constrained,
             )  # fmt: skip
             spend("imagine", began)
-            if pool is None:
-                learn(im, u, manual)
-            else:
+            if budget.overlap:
                 finish_learning()
                 if should_stop():  # the last round's learning asked to stop (e.g. no labels came)
                     break
-                learning = pool.submit(learn, im, u, manual)
+            behind.learn(learn, im, u, manual)
         finish_learning()
     finally:
-        if pool is not None:
-            pool.shutdown(wait=True)
+        behind.close()
     return losses
 
 

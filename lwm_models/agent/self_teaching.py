@@ -24,17 +24,15 @@ world-model server imagines while the planner learns.
 
 from __future__ import annotations
 
-import copy
 import time
 from collections.abc import Callable
-from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
 import torch
 
 from ..world.base import ManualBatch
-from .learning import fit_labels, imagine_round, imagined_states
+from .learning import LearningBehind, fit_labels, imagine_round, imagined_states
 from .policy import EmmaPolicy
 from .roles import RoleBelief, believe
 
@@ -184,10 +182,7 @@ def teach(
     own_hist, own_obs, own_steps = [], [], []  # states the agent labels itself (again, each round)
     own_labels: list[np.ndarray] = []  # their labels under the belief as it was last
     their_hist, their_labels = [], []  # states the person labelled
-    # With overlap a copy acts in imagination while `policy` learns in a thread of its own.
-    acting = copy.deepcopy(policy).eval() if config.overlap else policy
-    pool = ThreadPoolExecutor(1, thread_name_prefix="teaching-fit") if config.overlap else None
-    learning: Future | None = None
+    behind = LearningBehind(policy, config.overlap, "teaching-fit")
     try:
         for u in range(config.rounds):
             if should_stop():
@@ -195,8 +190,9 @@ def teach(
             manual = policy_manual() if callable(policy_manual) else policy_manual
             began = time.perf_counter()
             im = imagine_round(
-                acting, imaginer, manual, starts, config.episodes, rng, gen, seed * 10_000 + u, 32, config.constrained
-            )
+                behind.acting, imaginer, manual, starts, config.episodes, rng, gen, seed * 10_000 + u, 32,
+                config.constrained,
+            )  # fmt: skip
             hist, obs, steps, traj = imagined_states(im, 32)
             began = spend("imagine", began)
 
@@ -206,7 +202,7 @@ def teach(
             if ask is not None and room > 0:
                 chosen = choose_questions(belief, obs, room, config.ask_above)
                 if config.fill and len(chosen) < room:
-                    chosen = _with_unsure(acting, manual, hist, obs, chosen, room)
+                    chosen = _with_unsure(behind.acting, manual, hist, obs, chosen, room)
                 if len(chosen):
                     asked = ask(hist[chosen], obs[chosen], steps[chosen], traj[chosen], u + 1)
                     answers = np.asarray(asked, dtype=np.int64)
@@ -235,26 +231,20 @@ def teach(
             h = np.concatenate(own_hist + their_hist)
             y = np.concatenate([labels, *their_labels]).astype(np.int64)
             began = spend("label", began)
-            fit = (policy, manual, h, y, config.grad_steps, config.lr, config.batch, seed * 10_000 + u, opt)
-            if pool is None:
-                fit_labels(*fit)
-            else:
-                if learning is not None:
-                    learning.result()  # the last round's learning; what it did not overlap counts as fitting
-                acting.load_state_dict(policy.state_dict())
-                learning = pool.submit(fit_labels, *fit)
+            # Overlapped, what the last round's learning did not hide behind this round counts as fitting.
+            behind.learn(
+                fit_labels, policy, manual, h, y, config.grad_steps, config.lr, config.batch, seed * 10_000 + u, opt
+            )
             spend("fit", began)
             result.rounds = u + 1
             result.self_labelled = len(labels)
             if on_round is not None:
                 on_round(u + 1, result)
-        if learning is not None:
-            began = time.perf_counter()
-            learning.result()
+        began = time.perf_counter()
+        if behind.wait():
             spend("fit", began)
     finally:
-        if pool is not None:
-            pool.shutdown(wait=True)
+        behind.close()
     if their_labels:
         result.taught = (np.concatenate(their_hist), np.concatenate(their_labels))
     return result
