@@ -55,12 +55,13 @@ def run(args: argparse.Namespace) -> list[dict]:
     warm = load_policy(args.policy or SHIPPED_POLICY)
     ds = TrajectoryDataset(args.data, args.split)
     episode_games = np.asarray(ds.episode_games)
-    batch = {"batch": args.batch} if args.batch else {}
+    # Teaching's settings given on the command line; the others keep Teaching's defaults.
+    given = {"batch": args.batch} if args.batch else {}
     if args.overlap is not None:
-        batch["overlap"] = args.overlap
+        given["overlap"] = args.overlap
     setting = {
         k: v
-        for k, v in Teaching(args.rounds, args.episodes, args.grad_steps, **batch).__dict__.items()
+        for k, v in Teaching(args.rounds, args.episodes, args.grad_steps, **given).__dict__.items()
         if k not in ("label_budget", "per_round")
     }
     done = set()
@@ -98,7 +99,7 @@ def run(args: argparse.Namespace) -> list[dict]:
         policy = copy.deepcopy(warm)
         per_round = max(Teaching.per_round, -(-budget // args.rounds))  # a large budget can be spent
         teaching = Teaching(
-            args.rounds, args.episodes, args.grad_steps, label_budget=budget, per_round=per_round, **batch
+            args.rounds, args.episodes, args.grad_steps, label_budget=budget, per_round=per_round, **given
         )
         began = time.perf_counter()
         result = teach(policy, imaginer, policy_manual, start_observations(game, seed), teaching, person, seed)
