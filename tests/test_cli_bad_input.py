@@ -61,6 +61,17 @@ CASES: list[tuple[str, list[str], str]] = [
         ["train", "--data", "{tmp}/empty", "--out", "{tmp}/run", "--kind", "oracle", "--preset", "tiny"],
         "is not a Messenger-WM dataset",
     ),
+    # tune-reader
+    (
+        "tune-reader missing checkpoint",
+        ["tune-reader", "--init", "{tmp}/missing", "--data", "{tmp}/empty", "--out", "{tmp}/run"],
+        "no such directory",
+    ),
+    (
+        "tune-reader token drop out of range",
+        ["tune-reader", "--init", "{tmp}/empty", "--data", "{tmp}/empty", "--out", "{tmp}/run", "--token-drop", "2"],
+        "must be in [0, 1]",
+    ),
     # eval
     ("eval not a checkpoint", ["eval", "--checkpoint", "{tmp}/empty", "--data", "{tmp}/empty"], "not a checkpoint"),
     (

@@ -17,8 +17,9 @@ from lwm_models.world.shipped import POLICY, WORLD_MODELS
 ROOT = Path(__file__).resolve().parents[1]
 CONFIGS = ROOT / "configs"
 CHECKPOINTS = ROOT / "lwm_models" / "checkpoints"
-# A chunk's length and its progress bar are how one session ran, not how the model was trained.
-PER_CHUNK = {"max_minutes", "progress", "tensorboard"}
+# A chunk's length, its progress bar and where the run kept its state are how one session ran, not
+# how the model was trained.
+PER_CHUNK = {"max_minutes", "progress", "tensorboard", "out"}
 # recipe -> shipped checkpoint (lwm_models/world/shipped.py); oracle-long is the stopped long run of
 # OracleParse, not shipped
 SHIPPED = {m.directory: m.directory for m in (*WORLD_MODELS, POLICY)}
@@ -40,21 +41,29 @@ def test_every_shipped_checkpoint_has_its_recipe():
 
 @pytest.mark.parametrize("name", [m.directory for m in WORLD_MODELS])
 def test_a_world_model_recipe_parses_to_what_its_checkpoint_was_trained_with(name, tmp_path):
+    from lwm_models.world.reader_tuning import ReaderTuningArgs
     from lwm_models.world.train import TrainArgs
 
-    trained = json.loads((CHECKPOINTS / SHIPPED[name] / "config.json").read_text())["train_args"]
+    config = json.loads((CHECKPOINTS / SHIPPED[name] / "config.json").read_text())
+    command = _recipe(name)["command"]
+    # A checkpoint records the arguments of the command that made it: `lwm train`'s or `lwm tune-reader`'s.
+    fields, trained = {
+        "lwm train": (TrainArgs, config.get("train_args")),
+        "lwm tune-reader": (ReaderTuningArgs, config.get("reader_tuning")),
+    }[command]
+    assert trained is not None, f"{name}: the checkpoint does not record the arguments of {command}"
     # --data is given because data/human need not exist here; the recipe names the same directory
-    args = _parse(["train", "--config", str(CONFIGS / f"{name}.json"), "--data", str(tmp_path)])
+    args = _parse([command.split()[1], "--config", str(CONFIGS / f"{name}.json"), "--data", str(tmp_path)])
     assert _recipe(name)["options"]["data"] == trained["data"]
     assert args.data == str(tmp_path)
-    parsed = {f: getattr(args, f) for f in TrainArgs.__dataclass_fields__}
+    parsed = {f: getattr(args, f) for f in fields.__dataclass_fields__}
     for key, value in trained.items():
         if key in PER_CHUNK or key == "data":
             continue
         if key not in parsed:
-            raise AssertionError(f"{name}: the checkpoint records {key}, which lwm train no longer has")
+            raise AssertionError(f"{name}: the checkpoint records {key}, which {command} no longer has")
         assert parsed[key] == value, f"{name}: {key} is {parsed[key]!r}, the checkpoint was trained with {value!r}"
-    if "parts" not in trained:  # trained before batches in parts: one padded batch
+    if command == "lwm train" and "parts" not in trained:  # trained before batches in parts: one padded batch
         assert parsed["parts"] == 1
 
 

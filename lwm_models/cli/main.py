@@ -17,11 +17,11 @@ from collections.abc import Iterable
 from importlib.metadata import EntryPoint, entry_points
 
 from ..errors import LwmError
-from . import agent, data, export, imagine, ledger, parser_accuracy, play, recipes, train
+from . import agent, data, export, imagine, ledger, parser_accuracy, play, recipes, train, tune_reader
 from . import eval as evaluate
 from .args import LwmParser
 
-COMMANDS = (data, play, train, evaluate, imagine, export, parser_accuracy, agent, ledger)
+COMMANDS = (data, play, train, tune_reader, evaluate, imagine, export, parser_accuracy, agent, ledger)
 PLUGIN_GROUP = "lwm_models.commands"
 ROS_HINT = "the ROS 2 nodes are not installed{why}; run ./run_nodes.sh once"
 
