@@ -41,6 +41,7 @@ def run_args(data: Path, out: Path, **kw) -> ReaderTuningArgs:
         warmup=2,
         mix_source="free-form",
         mix_per_style=2,
+        splice=64,
         eval_every=12,
         eval_episodes=8,
         progress=False,
@@ -77,10 +78,10 @@ def reading_error(model, teacher, data: SplitTokens) -> tuple[float, float]:
 def test_only_the_reader_learns_and_other_words_are_read_as_the_dataset_s(tiny_data, tmp_path):
     teacher, _ = load_checkpoint(shipped_checkpoint("emma"))
     data = SplitTokens(tiny_data, "train", None)
-    result = tune_reader(run_args(tiny_data, tmp_path / "run"), log=lambda *_: None)
-    assert result["step"] == 24 and result["stopped"] == "steps"
+    result = tune_reader(run_args(tiny_data, tmp_path / "run", steps=48, eval_every=24), log=lambda *_: None)
+    assert result["step"] == 48 and result["stopped"] == "steps"
     tuned, config = load_checkpoint(tmp_path / "run" / "last")
-    assert config["config"]["text"]["max_tokens"] == 64 and config["reader_tuning"]["steps"] == 24
+    assert config["config"]["text"]["max_tokens"] == 64 and config["reader_tuning"]["steps"] == 48
     before, after = dict(teacher.named_parameters()), dict(tuned.named_parameters())
     reader = ("text_encoder.", "reader.k", "reader.v", "reader.key_pool", "reader.value_pool")
     changed = {n for n in before if not torch.equal(before[n], after[n])}
