@@ -37,7 +37,7 @@ from lwm_models.data.splits import load_split  # noqa: E402
 from lwm_models.ledger import Ledger  # noqa: E402
 from lwm_models.run_dirs import LEDGER_FILE  # noqa: E402
 from lwm_models.stats import mean_interval  # noqa: E402
-from lwm_models.world.shipped import SHIPPED  # noqa: E402
+from lwm_models.world.shipped import SHIPPED, SYSTEM_WORLD_MODEL  # noqa: E402
 
 TEXTS = ROOT.parent / "shared" / "data" / "messenger-texts"
 SPOKEN = re.compile(r"manual feedback on plan \d+ at ([\d.]+)")
@@ -175,7 +175,7 @@ def main() -> int:
         help="the nodes' parameter files (run_nodes.sh --config; default: the package's)",
     )
     p.add_argument(
-        "--checkpoint", type=Path, default=None, help="the world model the server serves (default: shipped EMMA-LWM)"
+        "--checkpoint", type=Path, default=None, help="the world model the server serves (default: the system's)"
     )
     args = p.parse_args()
     n = len(load_split(args.split))
@@ -217,13 +217,12 @@ def main() -> int:
         )
     if args.records.is_file():
         # Only records of the world model the world-model server served (by its weights' hash).
-        served = args.checkpoint or SHIPPED["emma"]
+        served = args.checkpoint or SHIPPED[SYSTEM_WORLD_MODEL]
         shipped = json.loads((served / "config.json").read_text()).get("sha256", "")
         table = {
             rec["game"]: rec["return"]
             for rec in map(json.loads, args.records.read_text().splitlines())
-            if rec["setting"] == "online_il" and rec["model"] == "emma" and rec["split"] == args.split
-            and rec.get("checkpoint") == shipped
+            if rec["setting"] == "online_il" and rec["split"] == args.split and rec.get("checkpoint") == shipped
         }  # fmt: skip
         if not table:
             print(f"no Table 3 records of the world model served ({shipped[:12]}) in {args.records}")

@@ -437,6 +437,7 @@ def teaching_overlap(base: str) -> list[str]:
 LANGUAGE_MODELS = (
     ("emma-lwm", "EMMA-LWM"),
     ("emma-lwm-freeform", "EMMA-LWM free-form"),
+    ("emma-lwm-reader", "EMMA-LWM, reader tuned"),
     ("gpthard", "GPTHard"),
     ("observational", "Observational (reads no text)"),
 )

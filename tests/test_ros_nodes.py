@@ -404,10 +404,10 @@ def test_the_planner_process_reads_no_world_model_weights(system):
         f = audit / f"{node_pid(module, domain)}.txt"
         return f.read_text() if f.is_file() else ""
 
-    assert "checkpoints/emma-lwm/" in opened("lwm_nodes.world_model_node")  # the audit sees the world model
+    assert "checkpoints/emma-lwm-reader/" in opened("lwm_nodes.world_model_node")  # the audit sees the world model
     planner = opened("lwm_nodes.planner_node")
     assert "checkpoints/policy-bc/" in planner  # it does load its policy
-    assert not any(f"checkpoints/{m}/" in planner for m in ("emma-lwm", "observational", "oracle"))
+    assert not any(f"checkpoints/{m}/" in planner for m in ("emma-lwm-reader", "emma-lwm", "observational", "oracle"))
 
 
 def test_a_killed_node_is_restarted(system):

@@ -36,7 +36,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--checkpoint",
         type=checkpoint_dir,
         default=None,
-        help="checkpoint directory (default: shipped EMMA-LWM)",
+        help="checkpoint directory (default: the shipped EMMA-LWM with its reader tuned, emma-lwm-reader)",
     )
     p.add_argument("--split", choices=SPLITS, default="newall-test", metavar="SPLIT", help="split of the game")
     p.add_argument("--index", type=nonnegative_int, default=0, help="game index in the split")
@@ -80,9 +80,9 @@ def run(args: argparse.Namespace) -> int:
     from ..messenger.render import render_ascii, render_trajectory_png
     from ..world.checkpoint import load_checkpoint
     from ..world.imagine import imagine
-    from ..world.shipped import shipped_checkpoint
+    from ..world.shipped import SYSTEM_WORLD_MODEL, shipped_checkpoint
 
-    path = args.checkpoint or shipped_checkpoint("emma")
+    path = args.checkpoint or shipped_checkpoint(SYSTEM_WORLD_MODEL)
     model, config = load_checkpoint(path)
     engine = BatchedMessenger(max_steps=args.max_steps)
     engine.reset([game], [args.seed])

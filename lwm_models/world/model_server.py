@@ -39,7 +39,7 @@ from .frozen_text import FrozenTextEncoder
 from .imagine import Imagination, StepwiseImagination, condition_rows
 from .manual import ManualBatch
 from .reading import grounding, read_identities, ungrounded_note
-from .shipped import shipped_checkpoint
+from .shipped import SYSTEM_WORLD_MODEL, shipped_checkpoint
 
 
 class RequestError(LwmError, ValueError):
@@ -85,7 +85,7 @@ class WorldModelServer:
         session_ttl: float = 300.0,
         agents: Sequence[str] = ("",),
     ) -> None:
-        self.checkpoint = Path(checkpoint) if checkpoint else shipped_checkpoint("emma")
+        self.checkpoint = Path(checkpoint) if checkpoint else shipped_checkpoint(SYSTEM_WORLD_MODEL)
         self.model, self.config = load_checkpoint(self.checkpoint)
         self.kind = self.config["kind"]
         if self.model.needs_parse:

@@ -37,10 +37,17 @@ WORLD_MODELS = (
     ShippedModel("gpthard", "gpthard", "gpthard", "GPTHard"),
     ShippedModel("emma", "emma-lwm", "emma", "EMMA-LWM", table3=True),
     ShippedModel("emma-freeform", "emma-lwm-freeform", "emma", "EMMA-LWM free-form"),
+    ShippedModel("emma-reader", "emma-lwm-reader", "emma", "EMMA-LWM, reader tuned"),
     ShippedModel("oracle", "oracle", "oracle", "OracleParse", table3=True),
 )
 POLICY = ShippedModel("policy-bc", "policy-bc", "policy", "warm-start policy")
 """The agent's warm-start policy (behaviour cloning on the training games)."""
+
+SYSTEM_WORLD_MODEL = "emma-reader"
+"""The world model the system serves unless told otherwise (the world-model server, `lwm imagine`):
+EMMA-LWM with its reader tuned for other words than the dataset's. Its decoder is EMMA-LWM's, bit
+for bit, so it imagines what EMMA-LWM imagines from what it reads (docs/language.md); the paper's
+tables are EMMA-LWM's."""
 
 SHIPPED = {m.key: m.path for m in WORLD_MODELS}
 SHIPPED_POLICY = POLICY.path

@@ -376,7 +376,9 @@ def given_parameters(
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="run_nodes.sh", description="Start the LWM system's nodes.")
     parser.add_argument(
-        "--checkpoint", default=None, help="the world model the world-model server serves (default: shipped EMMA-LWM)"
+        "--checkpoint",
+        default=None,
+        help="the world model the world-model server serves (default: EMMA-LWM, reader tuned)",
     )
     parser.add_argument(
         "--config",
