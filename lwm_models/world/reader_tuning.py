@@ -5,7 +5,8 @@ encoder's token vectors, and the description attention's key and value pools and
 turns each description into a key, which decides the entity it is about, and a value, what that
 entity does. The *decoder* adds what each entity reads to its id tokens and imagines. Fine-tuning
 the whole model on other words (`lwm train --manual-mix`, docs/language.md) taught it to read them
-but changed its imagination: a decoder that is shown text it cannot always read learns to hedge.
+but changed its imagination (most likely, not tested: a decoder shown text it cannot always read
+learns to hedge).
 
 Here only the reader learns and the decoder stays as shipped. The target is the model's own reading
 of the dataset's descriptions: a description of the dataset should give the key and value it gave
@@ -53,8 +54,8 @@ class ReaderTuningArgs:
     init: str = field(metadata={"help": "the EMMA-LWM checkpoint whose reader is tuned (its decoder is kept)"})
     data: str = field(metadata={"help": "dataset directory: its training split's descriptions are the targets"})
     out: str = field(metadata={"help": "run directory (last/, best/, metrics.jsonl); kept outside the repository"})
-    steps: int = field(default=2000, metadata={"help": "optimizer steps in total (a resumed run continues to this)"})
-    batch: int = field(default=64, metadata={"help": "descriptions of each kind (dataset's, other words) per step"})
+    steps: int = field(default=1500, metadata={"help": "optimizer steps in total (a resumed run continues to this)"})
+    batch: int = field(default=64, metadata={"help": "descriptions of each kind (dataset, other words, splice) a step"})
     lr: float = field(default=3e-4, metadata={"help": "AdamW peak learning rate (warm-up, then cosine to 10%)"})
     warmup: int = field(default=100, metadata={"help": "linear warm-up steps"})
     weight_decay: float = field(default=0.01, metadata={"help": "AdamW weight decay of the Linear weights"})
