@@ -164,7 +164,7 @@ def tune_reader(args: ReaderTuningArgs, log=print) -> dict:
     last, best_dir = out / "last", out / "best"
     recover(last)
     resuming = (last / "config.json").is_file() and (last / "train_state.json").is_file()
-    teacher, _ = load_checkpoint(args.init)
+    teacher, init_config = load_checkpoint(args.init)
     if teacher.kind != "emma":
         raise LwmError(f"{args.init} holds a {teacher.kind!r} model; only EMMA-LWM's reader can be tuned")
     teacher.requires_grad_(False)
@@ -227,7 +227,12 @@ def tune_reader(args: ReaderTuningArgs, log=print) -> dict:
         _cut_metrics(out / "metrics.jsonl", step)
         log(f"resuming from step {step} (best dev {best:.4f})")
     out.mkdir(parents=True, exist_ok=True)
-    meta = {"reader_tuning": asdict(args), "init": str(args.init), "data": str(args.data)}
+    meta = {
+        "preset": init_config.get("preset"),  # the size preset of the model tuned: the decoder is its
+        "reader_tuning": asdict(args),
+        "init": str(args.init),
+        "data": str(args.data),
+    }
     began, cpu_began = time.perf_counter(), time.process_time()
 
     def elapsed() -> dict[str, float]:
