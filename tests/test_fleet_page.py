@@ -22,6 +22,7 @@ CHROMIUM, DRIVER = shutil.which("chromium"), shutil.which("chromedriver")
 if not (CHROMIUM and DRIVER):
     pytest.skip("no Chromium (apt-get install chromium chromium-driver)", allow_module_level=True)
 pytest.importorskip("selenium.webdriver")
+from selenium.common.exceptions import StaleElementReferenceException  # noqa: E402
 from selenium.webdriver.support.ui import WebDriverWait  # noqa: E402
 from test_review_page import browser, free_port  # noqa: E402, F401 (browser: the same headless Chromium fixture)
 
@@ -102,7 +103,9 @@ def test_one_manual_on_the_fleet_page_replans_every_agent(fleet, browser):  # no
     shot(browser, tmp_path, "fleet_page_two_agents.png")
 
     # Each agent's link opens its own review page, with its plan under the new manual.
-    browser.find_element("css selector", "tr[data-agent='agent2'] a").click()
+    # The table is redrawn as the agents report, so a row found may be gone by the click: find it again.
+    clicking = WebDriverWait(browser, 30, poll_frequency=0.2, ignored_exceptions=(StaleElementReferenceException,))
+    clicking.until(lambda d: d.find_element("css selector", "tr[data-agent='agent2'] a").click() or True)
     browser.switch_to.window(browser.window_handles[-1])
     assert browser.current_url == pages["agent2/human"]
     wait.until(
