@@ -43,7 +43,7 @@ from ..text.pools import DescriptionPools
 from .base import WorldModel
 from .checkpoint import load_checkpoint, publish, recover, save_checkpoint, write_checkpoint
 from .frozen_text import FrozenTextEncoder
-from .train import _cut_metrics, _load_train_state, _param_groups, _save_train_state, evaluate_loss
+from .train import _cut_metrics, _load_train_state, _param_groups, _save_train_state, evaluate_loss, warmup_cosine_lr
 from .training_data import SplitTokens, redraw_manuals
 
 
@@ -137,10 +137,7 @@ def spliced_descriptions(texts: list[str], n: int, rng: np.random.Generator) -> 
 
 
 def _lr_at(step: int, args: ReaderTuningArgs) -> float:
-    if step < args.warmup:
-        return args.lr * (step + 1) / args.warmup
-    progress = (step - args.warmup) / max(1, args.steps - args.warmup)
-    return args.lr * (0.1 + 0.9 * 0.5 * (1 + np.cos(np.pi * min(1.0, progress))))
+    return warmup_cosine_lr(step, args.lr, args.warmup, args.steps)
 
 
 def trainable_reader(model: WorldModel) -> list[nn.Parameter]:

@@ -151,13 +151,19 @@ def _param_groups(model: nn.Module, weight_decay: float) -> list[dict]:
     return [{"params": decay, "weight_decay": weight_decay}, {"params": no_decay, "weight_decay": 0.0}]
 
 
+def warmup_cosine_lr(step: int, lr: float, warmup: int, steps: int, cosine: bool = True) -> float:
+    """The learning rate at `step`: linear warm-up over `warmup` steps, then (with `cosine`) a cosine
+    decay to 10% of `lr` at `steps`, or else `lr` throughout."""
+    if warmup and step < warmup:
+        return lr * (step + 1) / warmup
+    if cosine:
+        progress = (step - warmup) / max(1, steps - warmup)
+        return lr * (0.1 + 0.9 * 0.5 * (1 + math.cos(math.pi * min(1.0, progress))))
+    return lr
+
+
 def _lr_at(step: int, args: TrainArgs) -> float:
-    if args.warmup and step < args.warmup:
-        return args.lr * (step + 1) / args.warmup
-    if args.cosine:
-        progress = (step - args.warmup) / max(1, args.steps - args.warmup)
-        return args.lr * (0.1 + 0.9 * 0.5 * (1 + math.cos(math.pi * min(1.0, progress))))
-    return args.lr
+    return warmup_cosine_lr(step, args.lr, args.warmup, args.steps, args.cosine)
 
 
 def _save_train_state(
