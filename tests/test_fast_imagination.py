@@ -21,7 +21,7 @@ from lwm_models.world.checkpoint import load_checkpoint
 from lwm_models.world.continuous import ContinuousBatch, OneShot
 from lwm_models.world.decoding import default_decoding, make_decoder_batch
 from lwm_models.world.flat_decoder import FlatDecoder
-from lwm_models.world.imagine import DecoderBatch, condition_rows, imagine
+from lwm_models.world.imagine import DecoderBatch, StepwiseImagination, condition_rows, imagine
 from lwm_models.world.registry import PRESETS, build_model
 from lwm_models.world.shipped import shipped_checkpoint
 from lwm_models.world.speculative import FlatDecoderBatch
@@ -104,16 +104,26 @@ def test_the_comparison_can_fail(shipped, starts):
 
 
 def test_the_draft_decides_speed_not_tokens(shipped, starts, monkeypatch):
-    # A draft that is always wrong (every token 0) costs a call per token but samples the same.
+    # A draft that is always wrong (every token 0) samples the same tokens. It costs more calls, but
+    # not a call per token: after the first call a row's draft is what that call sampled.
     model, manual = shipped
     reference = run(model, manual, starts, "reference", seed=2)
 
     def wrong(last_obs, actions, last_done, last_reward):
         return torch.zeros(len(last_obs), speculative.STEP_TOKENS, dtype=torch.long)
 
+    def calls_per_step() -> float:
+        # One row alone feeds its whole draft per call (no lookahead limit): calls count re-drafts.
+        rollout = StepwiseImagination(model, manual, starts[:1], 1, STEPS, seed=2, stop_on_done=False)
+        for action in np.random.default_rng(2).integers(5, size=(STEPS, 1)):
+            rollout.step(action)
+        return rollout._rows.calls / STEPS
+
+    right = calls_per_step()
     monkeypatch.setattr(speculative, "draft_block", wrong)
     fast = run(model, manual, starts, "speculative", seed=2)
     assert_same_tokens(fast, reference)
+    assert right < calls_per_step() < speculative.STEP_TOKENS / 2
 
 
 def test_continuous_batching_on_the_fast_path(shipped, starts):

@@ -9,9 +9,13 @@ not done; `draft_block`) and feeds the draft in one call. The hidden state after
 the next one, so that call yields the distribution of every token *given that the draft before it
 is right*. Tokens are then sampled in order with the row's own uniform numbers, as the reference
 path does; while a sampled token equals the draft, the next distribution is already there. At the
-first token that differs, the row's later positions are void: the row keeps what it accepted, and
-its next call feeds the sampled token and the rest of the draft. A step costs 1 + (tokens that
-differ from the draft) calls instead of 14.
+first token that differs, the row's later distributions are void: the row keeps what it accepted,
+and its next call feeds the sampled token and, as the rest of its draft, the tokens this call
+sampled at the later positions (from a prefix with one wrong token, with the same uniform numbers).
+Those are usually what the next call samples again (one entity's move seldom changes what the
+model says of the others), so a step costs one call plus one per call that met a wrong token, not
+one per token that differs from the last observation (a fixed-point iteration on fixed random
+numbers; docs/speed.md has the calls per step).
 
 Every row has its own cache length (flat_decoder.RowCache), so a row that accepted more does not
 wait for one that accepted less: each call feeds each unfinished row from its own place, and a row
@@ -341,7 +345,9 @@ def _decide(
     stop = pending & ((tok != mine) | (m[None, :] >= last[:, None]))
     end = first + stop.int().argmax(1)  # argmax returns the first True
     take = pending & (m[None, :] <= end[:, None])
-    block[rows, first : top + 1] = torch.where(take, tok, mine)
+    # What this call sampled past the accepted tokens is the row's next draft (the module docstring).
+    guess = pending & (m[None, :] <= last[:, None])
+    block[rows, first : top + 1] = torch.where(guess, tok, mine)
     probs[rows, first : top + 1] = torch.where(take, p, probs.index_select(0, rows)[:, first : top + 1])
     stream[rows, 2:] = block.index_select(0, rows)[:, :13]
     now = torch.clamp(end + 2, max=15)  # stream entries valid: up to the one holding token `end`
