@@ -71,7 +71,8 @@ def draft_block(
 
 class FlatDecoderBatch(DecoderBatch):
     """`DecoderBatch` on the flat decoder, drafting `lookahead` tokens per call (-1: by the rows in the
-    call, `_lookahead`; 0: one token per call as the reference path, on the flat decoder only)."""
+    call and its place in the step, `_lookahead`; 0: one token per call as the reference path, on the
+    flat decoder only)."""
 
     def __init__(self, model: WorldModel, first_blocks: int = 0, lookahead: int = -1) -> None:
         super().__init__(model, use_cache=True, first_blocks=first_blocks)
@@ -125,11 +126,12 @@ class FlatDecoderBatch(DecoderBatch):
         if rules is None:  # the whole step in one scripted call
             self.calls += self.speculator.run(*state, *conditioning, self.lookahead)
         else:  # the rules are Python: what they allow is computed before each call
-            rows = everyone
+            rows, calls = everyone, 0
             while len(rows):
                 allowed = self._allowed(rules, block, rows)
-                rows = self.speculator(*state, rows, *conditioning, self._lookahead(len(rows)), allowed)
-                self.calls += 1
+                rows = self.speculator(*state, rows, *conditioning, self._lookahead(len(rows), calls), allowed)
+                calls += 1
+            self.calls += calls
         self.pending = block[:, -1]
         self.last_reward = block[:, OBS_TOKENS].clone()
         self.last_obs = block[:, :OBS_TOKENS].clone()
@@ -144,8 +146,8 @@ class FlatDecoderBatch(DecoderBatch):
         super().keep(idx)
         self.last_reward = self.last_reward[idx]
 
-    def _lookahead(self, rows: int) -> int:
-        return _lookahead(rows) if self.lookahead < 0 else self.lookahead
+    def _lookahead(self, rows: int, call: int) -> int:
+        return _lookahead(rows, call) if self.lookahead < 0 else self.lookahead
 
     def _allowed(self, rules: StepRules, block: torch.Tensor, rows: torch.Tensor) -> torch.Tensor:
         """What the rules allow at each of the 14 slots of rows `rows` [A, 14, 37] (reward and done
@@ -160,14 +162,19 @@ class FlatDecoderBatch(DecoderBatch):
         return out
 
 
-def _lookahead(rows: int) -> int:
-    """Draft tokens a call feeds per row when `rows` rows take part. A call over one row costs
-    about the same for 1 token or 15 (dispatch, not arithmetic), so a lone row feeds its whole
-    draft; over many rows every padded or rejected token is arithmetic, so they feed less
-    (benchmarks/imagination.py measured 1, 16 and 64 rows)."""
+def _lookahead(rows: int, call: int) -> int:
+    """Draft tokens a call feeds per row when `rows` rows take part, in the step's call number
+    `call` (0: the first). A call over one row costs about the same for 1 token or 15 (dispatch,
+    not arithmetic), so a lone row feeds its whole draft; over many rows every padded or rejected
+    token is arithmetic. A step's first draft (the last observation) is wrong somewhere in most
+    rows, so the first call feeds a few tokens; a later call's draft is what the call before it
+    sampled, mostly right, so up to 32 rows feed the rest of the block. Above 32 rows a call is
+    arithmetic-bound and feeding 3 throughout was fastest (benchmarks/imagination.py, docs/speed.md)."""
     if rows <= 4:
         return 13  # the whole draft (FED - 2; TorchScript reads no module constants)
-    return 5 if rows <= 32 else 3
+    if rows > 32:
+        return 3
+    return 5 if call == 0 else 13
 
 
 class _Speculator(nn.Module):
@@ -231,11 +238,11 @@ class _Speculator(nn.Module):
         lookahead: int,
     ) -> int:
         """A whole unconstrained step: calls until every row has sampled its block; returns how
-        many calls it took. `lookahead` < 0: by the rows in each call (`_lookahead`)."""
+        many calls it took. `lookahead` < 0: by the rows in each call and its number (`_lookahead`)."""
         rows = torch.arange(stream.shape[0])
         calls = 0
         while rows.shape[0] > 0:
-            ahead = _lookahead(rows.shape[0]) if lookahead < 0 else lookahead
+            ahead = _lookahead(rows.shape[0], calls) if lookahead < 0 else lookahead
             rows = self.forward(
                 stream,
                 fed,
