@@ -8,8 +8,8 @@ approved plan's shown trajectory died, time from feedback to the revised plan pe
 the reviewer's effort per game next to its return (labels asked and given, corrected steps,
 manuals written; `--teach none`: the manual is all the reviewer gives),
 the /lwm/imagine calls and their overhead over the world-model server's own time, and the
-comparison with Table 3's online-imitation records on the same games (results/table3/records-10-games-emma-lwm.jsonl,
-the shipped EMMA-LWM's).
+comparison with Table 3's online-imitation records of the served world model (by its weights'
+hash) on the same games (results/table3/records-*.jsonl).
 
     .venv/bin/python benchmarks/review_loop.py [--games 10] [--texts FILE ...] [--out results/review-loop/NAME.jsonl]
 """
@@ -159,8 +159,9 @@ def main() -> int:
     p.add_argument(
         "--records",
         type=Path,
-        default=ROOT / "results" / "table3" / "records-10-games-emma-lwm.jsonl",
-        help="Table 3 records of the same games to compare with (lwm agent table3 --records)",
+        default=None,
+        help="Table 3 records of the same games to compare with (lwm agent table3 --records; default: every "
+        "results/table3/records-*.jsonl, of which the served world model's)",
     )
     p.add_argument("--out", type=Path, default=None, help="JSONL of per-game results (appended)")
     p.add_argument("--logs", type=Path, default=None, help="keep each game's node logs and ledger here")
@@ -215,25 +216,26 @@ def main() -> int:
             f"/lwm/imagine: {c} calls, overhead {over:.1f} s over {server:.1f} s in the world-model server "
             f"({over / c * 1000:.2f} ms per call, {over / server:.1%})"
         )
-    if args.records.is_file():
-        # Only records of the world model the world-model server served (by its weights' hash).
-        served = args.checkpoint or SHIPPED[SYSTEM_WORLD_MODEL]
-        shipped = json.loads((served / "config.json").read_text()).get("sha256", "")
-        table = {
-            rec["game"]: rec["return"]
-            for rec in map(json.loads, args.records.read_text().splitlines())
-            if rec["setting"] == "online_il" and rec["split"] == args.split and rec.get("checkpoint") == shipped
-        }  # fmt: skip
-        if not table:
-            print(f"no Table 3 records of the world model served ({shipped[:12]}) in {args.records}")
-        both = [x for x in rows if x["game"] in table]
-        if both:
-            t3 = np.mean([table[x["game"]] for x in both])
-            mine = np.mean([x["real_return"] for x in both])
-            print(
-                f"Table 3 (online IL, EMMA-LWM, 48 episodes per game) on the same {len(both)} games: {t3:+.2f}; "
-                f"review loop: {mine:+.2f}; difference {mine - t3:+.2f}"
-            )
+    files = [args.records] if args.records else sorted((ROOT / "results" / "table3").glob("records-*.jsonl"))
+    # Only records of the world model the world-model server served (by its weights' hash).
+    served = args.checkpoint or SHIPPED[SYSTEM_WORLD_MODEL]
+    shipped = json.loads((served / "config.json").read_text()).get("sha256", "")
+    table = {
+        rec["game"]: rec["return"]
+        for path in files if path.is_file()
+        for rec in map(json.loads, path.read_text().splitlines())
+        if rec["setting"] == "online_il" and rec["split"] == args.split and rec.get("checkpoint") == shipped
+    }  # fmt: skip
+    if not table:
+        print(f"no Table 3 records of the world model served ({shipped[:12]}) in {', '.join(map(str, files))}")
+    both = [x for x in rows if x["game"] in table]
+    if both:
+        t3 = np.mean([table[x["game"]] for x in both])
+        mine = np.mean([x["real_return"] for x in both])
+        print(
+            f"Table 3 (online IL, the served {served.name}, 48 episodes per game) on the same {len(both)} of "
+            f"{len(rows)} games: {t3:+.2f}; review loop: {mine:+.2f}; difference {mine - t3:+.2f}"
+        )
     return 0
 
 
