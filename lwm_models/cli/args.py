@@ -8,7 +8,9 @@ import types
 import typing
 from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
-from typing import Any, NoReturn
+from typing import Any, NoReturn, TypeVar
+
+T = TypeVar("T")
 
 
 class HelpFormatter(argparse.HelpFormatter):
@@ -126,6 +128,11 @@ def existing_dir(text: str) -> Path:
     return path
 
 
+def existing_dir_text(text: str) -> str:
+    """`existing_dir`, kept as text: for a dataclass field that is recorded in JSON (run configs)."""
+    return str(existing_dir(text))
+
+
 def checkpoint_dir(text: str) -> Path:
     """A world-model checkpoint directory: its config.json is looked for before torch loads."""
     path = Path(text)
@@ -179,3 +186,10 @@ def add_dataclass_arguments(
                 options["metavar"] = {int: "N", float: "X", str: "TEXT"}[kind]
         options.update(extra.get(f.name, {}))
         parser.add_argument("--" + f.name.replace("_", "-"), **options)
+
+
+def dataclass_from_args(cls: type[T], args: argparse.Namespace) -> T:
+    """The dataclass `cls` from parsed options that `add_dataclass_arguments` declared (other
+    attributes of `args`, such as the subcommand's, are left out)."""
+    fields = {f.name for f in dataclasses.fields(cls)}
+    return cls(**{k: v for k, v in vars(args).items() if k in fields})

@@ -3,13 +3,13 @@
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 
 from .args import (
     LwmParser,
     add_dataclass_arguments,
-    existing_dir,
+    dataclass_from_args,
+    existing_dir_text,
     fraction,
     nonnegative_float,
     nonnegative_int,
@@ -27,11 +27,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         arguments=add_arguments,
     )
     p.set_defaults(func=run)
-
-
-def _dataset_dir(text: str) -> str:
-    """An existing directory (a dataset or a checkpoint), kept as text: TrainArgs is recorded in JSON."""
-    return str(existing_dir(text))
 
 
 def add_arguments(p: LwmParser) -> None:
@@ -64,10 +59,10 @@ def add_arguments(p: LwmParser) -> None:
         "select_episodes": positive_int,
     }
     extra = {name: {"type": check} for name, check in checks.items()}
-    extra["data"] = {"type": _dataset_dir, "metavar": "DIR"}
+    extra["data"] = {"type": existing_dir_text, "metavar": "DIR"}
     extra["out"] = {"metavar": "RUN"}
-    extra["init"] = {"type": _dataset_dir, "metavar": "CHECKPOINT"}
-    extra["distill"] = {"type": _dataset_dir, "metavar": "CHECKPOINT"}
+    extra["init"] = {"type": existing_dir_text, "metavar": "CHECKPOINT"}
+    extra["distill"] = {"type": existing_dir_text, "metavar": "CHECKPOINT"}
     extra["select"] = {"choices": list(SELECTIONS)}
     extra["mix_source"] = {"choices": list(MIX_SOURCES)}
     extra["kind"] = {"choices": list(KINDS)}
@@ -80,7 +75,5 @@ def add_arguments(p: LwmParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from ..world.train import TrainArgs, train
 
-    fields = {f.name for f in dataclasses.fields(TrainArgs)}
-    result = train(TrainArgs(**{k: v for k, v in vars(args).items() if k in fields}))
-    print(json.dumps(result))
+    print(json.dumps(train(dataclass_from_args(TrainArgs, args))))
     return 0

@@ -3,13 +3,13 @@
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 
 from .args import (
     LwmParser,
     add_dataclass_arguments,
-    existing_dir,
+    dataclass_from_args,
+    existing_dir_text,
     fraction,
     nonnegative_float,
     nonnegative_int,
@@ -28,10 +28,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         arguments=add_arguments,
     )
     p.set_defaults(func=run)
-
-
-def _dir(text: str) -> str:
-    return str(existing_dir(text))
 
 
 def add_arguments(p: LwmParser) -> None:
@@ -54,8 +50,8 @@ def add_arguments(p: LwmParser) -> None:
         "max_minutes": positive_float,
     }
     extra = {name: {"type": check} for name, check in checks.items()}
-    extra["init"] = {"type": _dir, "metavar": "CHECKPOINT"}
-    extra["data"] = {"type": _dir, "metavar": "DIR"}
+    extra["init"] = {"type": existing_dir_text, "metavar": "CHECKPOINT"}
+    extra["data"] = {"type": existing_dir_text, "metavar": "DIR"}
     extra["out"] = {"metavar": "RUN"}
     extra["mix_source"] = {"choices": list(MIX_SOURCES)}
     add_dataclass_arguments(p, ReaderTuningArgs, extra=extra)
@@ -65,6 +61,5 @@ def add_arguments(p: LwmParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from ..world.reader_tuning import ReaderTuningArgs, tune_reader
 
-    fields = {f.name for f in dataclasses.fields(ReaderTuningArgs)}
-    print(json.dumps(tune_reader(ReaderTuningArgs(**{k: v for k, v in vars(args).items() if k in fields}))))
+    print(json.dumps(tune_reader(dataclass_from_args(ReaderTuningArgs, args))))
     return 0
