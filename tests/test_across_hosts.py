@@ -26,7 +26,10 @@ PYTHON = sys.executable
 
 
 REASON = netns.unavailable()
-pytestmark = pytest.mark.skipif(REASON is not None, reason=f"no network namespaces here: {REASON}")
+pytestmark = [
+    pytest.mark.system,
+    pytest.mark.skipif(REASON is not None, reason=f"no network namespaces here: {REASON}"),
+]
 
 
 @pytest.fixture

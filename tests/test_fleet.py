@@ -20,6 +20,8 @@ from game_fixtures import MANUAL, OBS
 
 from lwm_models.world.model_server import RequestError
 
+pytestmark = pytest.mark.system
+
 OTHER = [
     "the plane is the messenger and it flees from you.",
     "the robot does not move, it is the goal.",

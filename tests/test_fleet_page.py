@@ -26,6 +26,8 @@ from selenium.common.exceptions import StaleElementReferenceException  # noqa: E
 from selenium.webdriver.support.ui import WebDriverWait  # noqa: E402
 from test_review_page import browser, free_port  # noqa: E402, F401 (browser: the same headless Chromium fixture)
 
+pytestmark = pytest.mark.system
+
 MANUAL = [
     "the plane chases you and it is deadly.",
     "the ball has the message and runs away from you.",

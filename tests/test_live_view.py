@@ -23,6 +23,8 @@ pytest.importorskip("foxglove")
 from lwm_nodes import domains  # noqa: E402
 from mcap.reader import make_reader  # noqa: E402
 
+pytestmark = pytest.mark.system
+
 
 class FoxgloveClient:
     """Just enough of a WebSocket client (RFC 6455) for Foxglove's JSON and binary messages. It offers

@@ -1,6 +1,6 @@
 """MCAP recordings (lwm_models.recording): what is written reads back, ROS 2's own serializer agrees
 with the CDR here, and the mcap-ros2 decoder (what other ROS tools use) opens the files. The
-recording of a real review is tested in test_ros_nodes.py."""
+recording of a real review is tested in test_scripted_runs.py."""
 
 from __future__ import annotations
 
