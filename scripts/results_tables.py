@@ -441,6 +441,7 @@ LANGUAGE_MODELS = (
     ("emma-lwm", "EMMA-LWM"),
     ("emma-lwm-freeform", "EMMA-LWM free-form"),
     ("emma-lwm-reader", "EMMA-LWM, reader tuned"),
+    ("emma-lwm-hedged", "EMMA-LWM, reader tuned, hedged"),
     ("gpthard", "GPTHard"),
     ("observational", "Observational (reads no text)"),
 )

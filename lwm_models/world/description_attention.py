@@ -33,12 +33,21 @@ class DescriptionAttention(nn.Module):
         self.k = nn.Linear(width, width)
         self.v = nn.Linear(width, width) if project_values else None
 
-    def forward(self, tokens: torch.Tensor, mask: torch.Tensor, id_vectors: torch.Tensor) -> torch.Tensor:
-        """tokens [B, 3, T, W] and mask [B, 3, T] of the descriptions, id_vectors [17, W] (the
-        query source of each id) -> [B, 17, W]: what each id reads."""
-        keys = self.k(self.key_pool(tokens, mask))  # [B, 3, W]
+    def read(self, tokens: torch.Tensor, mask: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """tokens [B, 3, T, W] and mask [B, 3, T] of the descriptions -> each description's key and
+        value [B, 3, W]."""
+        keys = self.k(self.key_pool(tokens, mask))
         values = self.value_pool(tokens, mask)
         if self.v is not None:
             values = self.v(values)
+        return keys, values
+
+    def attend(self, keys: torch.Tensor, values: torch.Tensor, id_vectors: torch.Tensor) -> torch.Tensor:
+        """keys and values [B, 3, W], id_vectors [17, W] (the query source of each id) -> [B, 17, W]:
+        what each id reads."""
         scores = torch.einsum("iw,bdw->bid", self.q(id_vectors), keys) / math.sqrt(keys.shape[-1])
         return torch.einsum("bid,bdw->biw", torch.softmax(scores, dim=-1), values)
+
+    def forward(self, tokens: torch.Tensor, mask: torch.Tensor, id_vectors: torch.Tensor) -> torch.Tensor:
+        """tokens [B, 3, T, W] and mask [B, 3, T] of the descriptions, id_vectors [17, W] -> [B, 17, W]."""
+        return self.attend(*self.read(tokens, mask), id_vectors)

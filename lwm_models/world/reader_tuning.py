@@ -92,9 +92,7 @@ def reading(model: WorldModel, features: torch.Tensor, mask: torch.Tensor) -> tu
     token vectors [N, T, F] and mask [N, T]): what the description attention compares with each
     entity's query, and what the entity then adds to its id tokens."""
     tokens = model.text_encoder(features[:, None], mask[:, None])  # [N, 1, T, W]
-    reader = model.reader
-    key = reader.k(reader.key_pool(tokens, mask[:, None]))
-    value = reader.v(reader.value_pool(tokens, mask[:, None]))
+    key, value = model.reader.read(tokens, mask[:, None])
     return key[:, 0], value[:, 0]
 
 

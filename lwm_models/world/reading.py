@@ -11,6 +11,7 @@ differently.
   of each of the 108 triples, computed once per model). The identity with the highest standardised
   score is the one the model reads the description as about.
 - GPTHard: the identity its router gave the description (the keyword parser).
+- A hedged EMMA-LWM (hedged_reading.py): as EMMA-LWM, from the attention of its own reading.
 - A model that reads no text reads no identity.
 
 `benchmarks/language_robustness.py` measures how often this is the description's true identity.
@@ -69,7 +70,7 @@ def read_identities(
     model: WorldModel, encoder: FrozenTextEncoder | None, descriptions: Sequence[str]
 ) -> list[str | None]:
     """The identity `model` reads each description as about (None: it reads no text)."""
-    if model.route is not None:
+    if model.route is not None and not hasattr(model, "reader"):
         return [ID_TO_IDENTITY.get(int(model.route(d))) for d in descriptions]
     if not model.reads_text or encoder is None or not hasattr(model, "reader"):
         return [None] * len(descriptions)

@@ -38,6 +38,7 @@ WORLD_MODELS = (
     ShippedModel("emma", "emma-lwm", "emma", "EMMA-LWM", table3=True),
     ShippedModel("emma-freeform", "emma-lwm-freeform", "emma", "EMMA-LWM free-form"),
     ShippedModel("emma-reader", "emma-lwm-reader", "emma", "EMMA-LWM, reader tuned"),
+    ShippedModel("emma-hedged", "emma-lwm-hedged", "emma-hedged", "EMMA-LWM, reader tuned, hedged"),
     ShippedModel("oracle", "oracle", "oracle", "OracleParse", table3=True),
 )
 POLICY = ShippedModel("policy-bc", "policy-bc", "policy", "warm-start policy")

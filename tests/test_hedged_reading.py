@@ -1,0 +1,81 @@
+"""Reading with hedges (lwm_models/world/hedged_reading.py), on the shipped checkpoint: the words
+decide what they decide and leave the rest open; a reading the words agree with stands, one they
+contradict becomes the mean prototype of what they allow; the shipped prototypes are what the
+code fits from the weights they were made from."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from lwm_models.messenger.constants import ALL_TRIPLES
+from lwm_models.world.checkpoint import load_checkpoint
+from lwm_models.world.hedged_reading import candidates, hedge, words_code
+from lwm_models.world.shipped import SHIPPED
+
+HEDGED = "lwm_models/checkpoints/emma-lwm-hedged"
+
+
+@pytest.fixture(scope="module")
+def hedged():
+    model, config = load_checkpoint(HEDGED, kind="emma-hedged")
+    return model, config
+
+
+def allowed(text: str) -> set[tuple[str, str, str]]:
+    mask = candidates(torch.tensor(words_code(text)))
+    return {ALL_TRIPLES[i] for i in torch.nonzero(mask).flatten().tolist()}
+
+
+def test_the_words_decide_what_they_say_and_leave_the_rest_open():
+    assert allowed("the plane chases you and it is deadly.") == {("airplane", "chaser", "enemy")}
+    # No movement word: the three movements stay open, identity and role do not.
+    assert allowed("the robot is the goal.") == {("robot", m, "goal") for m in ("chaser", "fleeing", "immovable")}
+    # A negated role is no role: "not the goal" leaves the role open.
+    assert {r for _, _, r in allowed("the ball never moves and it is not the goal.")} == {"enemy", "message", "goal"}
+
+
+def test_a_reading_the_words_contradict_is_replaced_by_what_they_allow(hedged):
+    model, _ = hedged
+    pk, pv = model.proto_keys, model.proto_values
+    a = ALL_TRIPLES.index(("airplane", "chaser", "enemy"))
+    b = ALL_TRIPLES.index(("airplane", "chaser", "goal"))
+    # Readings exactly at prototype a: words of a agree (the reading stands), words of b do not.
+    keys, values = pk[a].expand(1, 2, -1).clone(), pv[a].expand(1, 2, -1).clone()
+    codes = torch.tensor([[words_code("the plane chases you and it is deadly."),
+                           words_code("the plane chases you and it is the goal.")]])  # fmt: skip
+    k, v, stands = hedge(keys, values, codes, pk, pv)
+    assert stands.tolist() == [[True, False]]
+    assert torch.equal(k[0, 0], keys[0, 0]) and torch.equal(v[0, 0], values[0, 0])
+    assert torch.allclose(k[0, 1], pk[b]) and torch.allclose(v[0, 1], pv[b])
+    # Words that leave the role open: the mean of the three roles' prototypes.
+    open_role = [ALL_TRIPLES.index(("airplane", "chaser", r)) for r in ("enemy", "message", "goal")]
+    far = torch.full_like(keys, 100.0)  # nearest to no candidate of these words
+    codes = torch.tensor([[words_code("the plane chases you."), words_code("the plane chases you.")]])
+    k, v, stands = hedge(far, far, codes, pk, pv)
+    assert not stands.any() and torch.allclose(v[0, 0], pv[open_role].mean(0), atol=1e-6)
+
+
+def test_the_dataset_s_kind_of_words_condition_as_the_reader_tuned_model_does(hedged):
+    model, _ = hedged
+    reader, _ = load_checkpoint(SHIPPED["emma-reader"], kind="emma")
+    manual = ["the plane chases you and it is deadly.", "the ball has the message and runs away from you.",
+              "the robot is the goal and it never moves."]  # fmt: skip
+    encoder = model.frozen_text_encoder()
+    with torch.no_grad():
+        mine = model.condition(model.read_manual(manual, encoder)).id_table
+        theirs = reader.condition(reader.read_manual(manual, encoder)).id_table
+    assert torch.allclose(mine, theirs, atol=1e-5)
+
+
+def test_the_shipped_prototypes_are_what_the_code_fits(hedged):
+    model, config = hedged
+    assert config["hedged_reading"]["source"].endswith("emma-lwm-reader")
+    shipped_k, shipped_v = model.proto_keys.clone(), model.proto_values.clone()
+    with torch.no_grad():
+        model.fit_prototypes(model.frozen_text_encoder(), seed=config["hedged_reading"]["seed"])
+    # The checkpoint is fp16: the fit from its (fp16) weights matches to fp16's precision.
+    assert torch.allclose(model.proto_keys, shipped_k, atol=2e-2, rtol=1e-2)
+    assert torch.allclose(model.proto_values, shipped_v, atol=2e-3, rtol=1e-2)
+    model.proto_keys.copy_(shipped_k)
+    model.proto_values.copy_(shipped_v)
