@@ -79,3 +79,28 @@ def test_the_shipped_prototypes_are_what_the_code_fits(hedged):
     assert torch.allclose(model.proto_values, shipped_v, atol=2e-3, rtol=1e-2)
     model.proto_keys.copy_(shipped_k)
     model.proto_values.copy_(shipped_v)
+
+
+def test_the_server_says_what_the_words_leave_open_and_whether_the_model_guessed():
+    from lwm_models.world.frozen_text import FrozenTextEncoder
+    from lwm_models.world.model_server import WorldModelServer
+
+    board_manual = ["the plane chases you and it is deadly.", "the ball has the message and flees.",
+                    "the robot is the goal and it never moves."]  # fmt: skip
+    person = ["the plane chases you and it is deadly.", "the ball has the message and flees.",
+              "the thing that stays put is not the goal."]  # fmt: skip
+    notes = {}
+    for name in ("emma-lwm-hedged", "emma-lwm-reader"):
+        srv = WorldModelServer(checkpoint=f"lwm_models/checkpoints/{name}", encoder=FrozenTextEncoder())
+        srv.take_env_manual(board_manual, "newall-test:0:0")
+        assert srv.ungrounded() is None  # every fact said, every entity on the board
+        srv.set_manual(person, "human")
+        notes[name] = (srv.status()["reading"], srv.ungrounded())
+    reading, note = notes["emma-lwm-hedged"]
+    assert "unsure" not in reading[0] and "unsure" not in reading[1]
+    # "not the goal" says no role: the hedged model names what is open, and the person hears it.
+    assert reading[2]["unsure"] == ["role"] and isinstance(reading[2]["guessed"], bool)
+    assert '"the thing that stays put is not the goal." does not say its role' in note
+    # A model that does not check its reading against the words says nothing of it.
+    reading, note = notes["emma-lwm-reader"]
+    assert all("unsure" not in r for r in reading) and "does not say" not in (note or "")

@@ -122,6 +122,21 @@ class HedgedEmmaLWM(EmmaLWM):
         return Conditioning(id_table=self.reader.attend(keys, values, self.obs_embedding(ids)))
 
     @torch.no_grad()
+    def unsure(self, manual: ManualBatch) -> list[dict]:
+        """Per description of a batch-of-one manual: the fields ("identity", "movement", "role") its
+        words leave open (`open`), and whether the world model's own reading stood (`guessed`: it
+        filled them in itself) or it imagines a mixture of what the words allow."""
+        tokens = self.text_encoder(manual.features, manual.mask)
+        keys, values = self.reader.read(tokens, manual.mask)
+        _, _, stands = hedge(keys, values, manual.routed, self.proto_keys, self.proto_values)
+        out = []
+        for code, stood in zip(manual.routed[0].tolist(), stands[0].tolist()):
+            decided = (code // 16 > 0, (code // 4) % 4 > 0, code % 4 > 0)
+            open_ = [f for f, d in zip(("identity", "movement", "role"), decided) if not d]
+            out.append({"open": open_, "guessed": bool(stood)})
+        return out
+
+    @torch.no_grad()
     def fit_prototypes(self, encoder: FrozenTextEncoder, seed: int = 0) -> None:
         """Each triple's prototype: the mean key and value this model reads from up to
         `PROTOTYPE_TEXTS` of the project's generated descriptions of it (drawn with `seed`)."""

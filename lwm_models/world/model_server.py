@@ -38,7 +38,7 @@ from .continuous import OneShot, run_alone
 from .frozen_text import FrozenTextEncoder
 from .imagine import Imagination, StepwiseImagination, condition_rows
 from .manual import ManualBatch
-from .reading import grounding, read_identities, ungrounded_note
+from .reading import grounding, read_identities, ungrounded_note, unsure_fields, unsure_note
 from .shipped import SYSTEM_WORLD_MODEL, shipped_checkpoint
 
 
@@ -61,6 +61,7 @@ class ManualState:
 
     manual: list[str] | None = None
     reading: list[str | None] | None = None  # the identity the model reads each description as about
+    unsure: list[list[str]] | None = None  # per description, what a hedged model leaves open
     version: int = 0
     source: str = ""
     game: str = ""  # split:index of the last environment manual
@@ -136,7 +137,7 @@ class WorldModelServer:
             if state.manual == list(descriptions) and state.batch is not None:
                 return state.version, False
             batch = self.model.read_manual(descriptions, self.encoder)
-            self._assign(state, list(descriptions), batch, read_identities(self.model, self.encoder, descriptions))
+            self._assign(state, list(descriptions), batch, *self._read_back(descriptions, batch))
             state.source = source
             self._save()
             return state.version, True
@@ -145,21 +146,26 @@ class WorldModelServer:
         """Give every agent the same manual (read once): each agent's (version, changed)."""
         with self.lock:
             batch = self.model.read_manual(descriptions, self.encoder)  # raises before anything changes
-            reading = read_identities(self.model, self.encoder, descriptions)
+            reading = self._read_back(descriptions, batch)
             out = {}
             for name, state in self.agents.items():
                 if state.manual == list(descriptions) and state.batch is not None:
                     out[name] = (state.version, False)
                     continue
-                self._assign(state, list(descriptions), batch, reading)
+                self._assign(state, list(descriptions), batch, *reading)
                 state.source = source
                 out[name] = (state.version, True)
             self._save()
             return out
 
+    def _read_back(self, descriptions: list[str], batch: ManualBatch) -> tuple[list, list | None]:
+        """Which entity the model reads each description as about, and what it is unsure of."""
+        return read_identities(self.model, self.encoder, descriptions), unsure_fields(self.model, batch)
+
     @staticmethod
-    def _assign(state: ManualState, manual: list[str], batch: ManualBatch, reading) -> None:
-        state.manual, state.batch, state.cond, state.reading = manual, batch, None, reading
+    def _assign(state: ManualState, manual: list[str], batch: ManualBatch, reading, unsure) -> None:
+        state.manual, state.batch, state.cond = manual, batch, None
+        state.reading, state.unsure = reading, unsure
         state.version += 1
 
     def board(self, agent: str | None = None) -> list[str] | None:
@@ -174,13 +180,17 @@ class WorldModelServer:
         return [e.identity for e in game.entities]
 
     def ungrounded(self, agent: str | None = None) -> str | None:
-        """What to tell a person when the world model reads a description of an agent's manual as
-        about an entity that is not on its board (world/reading.py); None when all are placed."""
+        """What to tell a person about an agent's new manual: a description the world model reads as
+        about an entity that is not on its board, and what a hedged model is unsure of because the
+        words leave it open (world/reading.py); None when there is nothing to say."""
         with self.lock:
             state, board = self.state(agent), self.board(agent)
-            if board is None or not state.manual or state.reading is None:
+            if not state.manual:
                 return None
-            return ungrounded_note(state.manual, state.reading, board)
+            notes = [unsure_note(state.manual, state.unsure)]
+            if board is not None and state.reading is not None:
+                notes.insert(0, ungrounded_note(state.manual, state.reading, board))
+            return "; ".join(n for n in notes if n) or None
 
     def take_env_manual(
         self, descriptions: list[str], episode_id: str = "", agent: str | None = None
@@ -219,7 +229,7 @@ class WorldModelServer:
         if board is not None:
             out["board"] = board
             if state.manual and state.reading is not None and any(r is not None for r in state.reading):
-                out["reading"] = grounding(state.reading, board)
+                out["reading"] = grounding(state.reading, board, state.unsure)
         return out
 
     def _save(self) -> None:
@@ -245,7 +255,7 @@ class WorldModelServer:
                 if entry.get("manual"):
                     state.batch = self.model.read_manual(entry["manual"], self.encoder)
                     state.manual = list(entry["manual"])
-                    state.reading = read_identities(self.model, self.encoder, state.manual)
+                    state.reading, state.unsure = self._read_back(state.manual, state.batch)
                 state.version = int(entry.get("version", 0))
                 state.source = str(entry.get("source", ""))
                 state.game = str(entry.get("game", ""))

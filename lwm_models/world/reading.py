@@ -85,9 +85,23 @@ def read_identities(
     return [ID_TO_IDENTITY[IDENTITY_IDS[int(i)]] for i in best]
 
 
-def grounding(read: Sequence[str | None], board: Sequence[str]) -> list[dict]:
-    """Per description: the identity read and whether that entity is on the board."""
-    return [{"identity": r, "on_board": r is not None and r in board} for r in read]
+def unsure_fields(model: WorldModel, manual: ManualBatch) -> list[dict] | None:
+    """Per description, what its words leave open and whether the world model filled it in itself
+    or imagines each possibility (a hedged EMMA-LWM, world/hedged_reading.py); None for a model
+    that does not check its reading against the words."""
+    unsure = getattr(model, "unsure", None)
+    return None if unsure is None else unsure(manual)
+
+
+def grounding(read: Sequence[str | None], board: Sequence[str], unsure: Sequence[dict] | None = None) -> list[dict]:
+    """Per description: the identity read, whether that entity is on the board, and (hedged models)
+    what the words leave open and whether the world model guessed it."""
+    out = [{"identity": r, "on_board": r is not None and r in board} for r in read]
+    for entry, u in zip(out, unsure or []):
+        if u["open"]:
+            entry["unsure"] = list(u["open"])
+            entry["guessed"] = bool(u["guessed"])
+    return out
 
 
 def ungrounded_note(descriptions: Sequence[str], read: Sequence[str | None], board: Sequence[str]) -> str | None:
@@ -100,8 +114,18 @@ def ungrounded_note(descriptions: Sequence[str], read: Sequence[str | None], boa
     return f"the world model reads {said}, not on this board ({', '.join(board)})"
 
 
+def unsure_note(descriptions: Sequence[str], unsure: Sequence[dict] | None) -> str | None:
+    """What to tell a person whose words leave something open, or None."""
+    said = []
+    for text, u in zip(descriptions, unsure or []):
+        if u["open"]:
+            how = "the world model guessed" if u["guessed"] else "the world model imagines each possibility"
+            said.append(f'"{_short(text)}" does not say its {" or ".join(u["open"])} ({how})')
+    return None if not said else "; ".join(said) + ": say it plainly to fix it"
+
+
 def _short(text: str, limit: int = 48) -> str:
     return text if len(text) <= limit else text[: limit - 3].rstrip() + "..."
 
 
-__all__ = ["attention_scores", "grounding", "read_identities", "ungrounded_note"]
+__all__ = ["attention_scores", "grounding", "read_identities", "ungrounded_note", "unsure_fields", "unsure_note"]
