@@ -80,8 +80,9 @@ def page_system(tmp_path):
 
 @pytest.fixture()
 def unnamed_page_system(tmp_path):
-    """Nobody named: the page asks who is reviewing."""
-    yield from start_page_system(tmp_path)
+    """Nobody named: the page asks who is reviewing. The world model checks its readings against
+    the manual's words (emma-lwm-hedged), so the page can say what a person's words leave open."""
+    yield from start_page_system(tmp_path, "--checkpoint", "lwm_models/checkpoints/emma-lwm-hedged")
 
 
 @pytest.fixture()
@@ -345,6 +346,15 @@ def test_review_in_the_browser(unnamed_page_system, browser):
     assert f"as about the {stranger}, not on this board" in text("message")
     wait.until(lambda _: f"{stranger} (not on this board)" in text("reading"))
     shoot(browser, tmp_path, "review_page_off_board.png", "reading")
+
+    # Words that leave a fact open: the world model says which, at once, under the manual too.
+    box = browser.find_element("id", "d0")
+    box.clear()
+    box.send_keys(f"the {status['board'][0]} never moves.")
+    browser.find_element("id", "send-manual").click()
+    wait.until(lambda _: "does not say its role" in text("message"))
+    wait.until(lambda _: "role not said" in text("reading"))
+    shoot(browser, tmp_path, "review_page_left_open.png", "reading")
 
     # Another origin cannot answer through the reviewer's browser.
     request = urllib.request.Request(
