@@ -352,8 +352,8 @@ def test_review_in_the_browser(unnamed_page_system, browser):
     box.clear()
     box.send_keys(f"the {status['board'][0]} never moves.")
     browser.find_element("id", "send-manual").click()
-    wait.until(lambda _: "does not say its role" in text("message"))
-    wait.until(lambda _: "role not said" in text("reading"))
+    wait.until(lambda _: "leaves its role unclear" in text("message"))
+    wait.until(lambda _: "role unclear" in text("reading"))
     shoot(browser, tmp_path, "review_page_left_open.png", "reading")
 
     # Another origin cannot answer through the reviewer's browser.

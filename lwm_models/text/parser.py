@@ -223,6 +223,19 @@ def parse_description(text: str, encoder=None) -> tuple[str | None, str | None, 
     return parse_identity(text, encoder), parse_movement(text, encoder), parse_role(text, encoder)
 
 
+def nearest_value(text: str, field: str, encoder) -> str | None:
+    """The movement (`field="movement"`) or role of the known phrase nearest to one of a
+    description's clauses in the encoder's space, whatever its keywords say: a second opinion.
+    Unlike the guess for an undecided field, negated clauses count ("it never moves" is a
+    movement)."""
+    clauses = [c.strip() for c in _CLAUSE.split(normalise(text)) if c and c.strip()]
+    if not clauses:
+        return None
+    values, protos = _value_prototypes(encoder, field)
+    feats, lengths = encoder.encode_arrays(clauses)
+    return values[int(np.argmax(_mean_unit(feats, lengths) @ protos.T)) % len(values)]
+
+
 def route_identity_id(text: str) -> int:
     """GPTHard's routing: the observation id of the parsed identity, 0 when there is none."""
     ident = parse_identity(text)

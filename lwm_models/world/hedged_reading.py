@@ -35,7 +35,7 @@ import numpy as np
 import torch
 
 from ..messenger.constants import ALL_TRIPLES, IDENTITIES, MOVEMENTS, NUM_IDS, ROLES
-from ..text.parser import parse_identity, parse_movement, parse_role
+from ..text.parser import nearest_value, parse_identity, parse_movement, parse_role
 from .base import Conditioning, WorldModelConfig
 from .emma import EmmaLWM
 from .frozen_text import FrozenTextEncoder
@@ -55,9 +55,13 @@ def _name_encoder() -> FrozenTextEncoder:
 def words_code(text: str) -> int:
     """What a description's words decide, as one int: identity id * 16 + (movement index + 1) * 4
     + (role index + 1); 0 marks a field left open (the identity is open only when no name is
-    near)."""
-    identity = parse_identity(text, _name_encoder())
+    near). A movement keyword counts only where the encoder's nearest movement phrase agrees
+    ("non-moving" holds the keyword "moving")."""
+    encoder = _name_encoder()
+    identity = parse_identity(text, encoder)
     movement, role = parse_movement(text), parse_role(text)
+    if movement is not None and nearest_value(text, "movement", encoder) != movement:
+        movement = None
     return (
         IDENTITIES.get(identity, 0) * 16
         + (0 if movement is None else MOVEMENTS.index(movement) + 1) * 4

@@ -115,12 +115,13 @@ def ungrounded_note(descriptions: Sequence[str], read: Sequence[str | None], boa
 
 
 def unsure_note(descriptions: Sequence[str], unsure: Sequence[dict] | None) -> str | None:
-    """What to tell a person whose words leave something open, or None."""
+    """What to tell a person whose words leave something open (unsaid, or said in a way the keyword
+    parser and the encoder read differently), or None."""
     said = []
     for text, u in zip(descriptions, unsure or []):
         if u["open"]:
             how = "the world model guessed" if u["guessed"] else "the world model imagines each possibility"
-            said.append(f'"{_short(text)}" does not say its {" or ".join(u["open"])} ({how})')
+            said.append(f'"{_short(text)}" leaves its {" and ".join(u["open"])} unclear ({how})')
     return None if not said else "; ".join(said) + ": say it plainly to fix it"
 
 
