@@ -101,6 +101,8 @@ def test_the_server_says_what_the_words_leave_open_and_whether_the_model_guessed
     # "not the goal" says no role: the hedged model names what is open, and the person hears it.
     assert reading[2]["unsure"] == ["role"] and isinstance(reading[2]["guessed"], bool)
     assert '"the thing that stays put is not the goal." leaves its role unclear' in note
-    # A model that does not check its reading against the words says nothing of it.
+    # A model that does not check its reading against the words always guesses; the person still
+    # hears which fact no keyword states.
     reading, note = notes["emma-lwm-reader"]
-    assert all("unsure" not in r for r in reading) and "unclear" not in (note or "")
+    assert reading[2]["unsure"] == ["role"] and reading[2]["guessed"] is True
+    assert '"the thing that stays put is not the goal." leaves its role unclear (the world model guessed)' in note

@@ -160,7 +160,7 @@ class WorldModelServer:
 
     def _read_back(self, descriptions: list[str], batch: ManualBatch) -> tuple[list, list | None]:
         """Which entity the model reads each description as about, and what it is unsure of."""
-        return read_identities(self.model, self.encoder, descriptions), unsure_fields(self.model, batch)
+        return read_identities(self.model, self.encoder, descriptions), unsure_fields(self.model, batch, descriptions)
 
     @staticmethod
     def _assign(state: ManualState, manual: list[str], batch: ManualBatch, reading, unsure) -> None:

@@ -85,12 +85,23 @@ def read_identities(
     return [ID_TO_IDENTITY[IDENTITY_IDS[int(i)]] for i in best]
 
 
-def unsure_fields(model: WorldModel, manual: ManualBatch) -> list[dict] | None:
+def unsure_fields(model: WorldModel, manual: ManualBatch, descriptions: Sequence[str]) -> list[dict] | None:
     """Per description, what its words leave open and whether the world model filled it in itself
-    or imagines each possibility (a hedged EMMA-LWM, world/hedged_reading.py); None for a model
-    that does not check its reading against the words."""
+    (`guessed`) or imagines each possibility: a hedged EMMA-LWM (world/hedged_reading.py) knows
+    both; a model that reads text but not the words' facts always guesses, and what is open is
+    the movement or role no keyword states; None for a model that reads no text."""
     unsure = getattr(model, "unsure", None)
-    return None if unsure is None else unsure(manual)
+    if unsure is not None:
+        return unsure(manual)
+    if not model.reads_text:
+        return None
+    from ..text.parser import parse_movement, parse_role
+
+    out = []
+    for text in descriptions:
+        said = {"movement": parse_movement(text), "role": parse_role(text)}
+        out.append({"open": [f for f, v in said.items() if v is None], "guessed": True})
+    return out
 
 
 def grounding(read: Sequence[str | None], board: Sequence[str], unsure: Sequence[dict] | None = None) -> list[dict]:
