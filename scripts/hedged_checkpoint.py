@@ -1,9 +1,10 @@
 #!/usr/bin/env python
 """Make a hedged EMMA-LWM checkpoint (lwm_models/world/hedged_reading.py) from an EMMA-LWM one:
 the same weights, plus the 108 triple prototypes fitted from the project's generated
-descriptions. Nothing is trained; it takes seconds.
+descriptions and the distance within which a reading stands (from the dataset's training
+descriptions). Nothing is trained; it takes seconds.
 
-    .venv/bin/python scripts/hedged_checkpoint.py \\
+    .venv/bin/python scripts/hedged_checkpoint.py --data data/human \\
         --source lwm_models/checkpoints/emma-lwm-reader --out lwm_models/checkpoints/emma-lwm-hedged
 """
 
@@ -20,17 +21,23 @@ sys.path.insert(0, str(ROOT))
 
 from lwm_models.errors import LwmError  # noqa: E402
 from lwm_models.world.checkpoint import load_checkpoint, read_config, save_checkpoint  # noqa: E402
-from lwm_models.world.hedged_reading import PROTOTYPE_TEXTS, HedgedEmmaLWM  # noqa: E402
+from lwm_models.world.hedged_reading import PROTOTYPE_TEXTS, STAND_QUANTILE, HedgedEmmaLWM  # noqa: E402
+from lwm_models.world.reader_tuning import dataset_descriptions  # noqa: E402
+from lwm_models.world.training_data import SplitTokens  # noqa: E402
 
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--source", type=Path, required=True, help="an EMMA-LWM checkpoint directory")
     ap.add_argument("--out", type=Path, required=True, help="the hedged checkpoint's directory (replaced)")
+    ap.add_argument(
+        "--data", type=Path, required=True, help="dataset whose training split's descriptions set the stand distance"
+    )
     ap.add_argument("--seed", type=int, default=0, help="seed of the generated descriptions drawn per triple")
     args = ap.parse_args()
     try:
         model, _ = load_checkpoint(args.source, kind="emma")
+        texts, _ = dataset_descriptions(SplitTokens(args.data, "train", None, None))
         meta = {k: v for k, v in read_config(args.source).items()
                 if k not in ("format", "version", "kind", "config", "dtype", "parameters", "sha256")}  # fmt: skip
     except LwmError as exc:
@@ -39,8 +46,17 @@ def main() -> int:
     hedged = HedgedEmmaLWM(model.config)
     hedged.load_state_dict(model.state_dict(), strict=False)  # all but the prototypes
     hedged.eval()
-    hedged.fit_prototypes(hedged.frozen_text_encoder(), seed=args.seed)
-    meta["hedged_reading"] = {"source": str(args.source), "prototype_texts": PROTOTYPE_TEXTS, "seed": args.seed}
+    encoder = hedged.frozen_text_encoder()
+    hedged.fit_prototypes(encoder, seed=args.seed)
+    hedged.fit_stand_distance(encoder, texts)
+    meta["hedged_reading"] = {
+        "source": str(args.source),
+        "data": str(args.data),
+        "seed": args.seed,
+        "prototype_texts": PROTOTYPE_TEXTS,
+        "stand_quantile": STAND_QUANTILE,
+        "stand_distance": round(float(hedged.stand_distance), 4),
+    }
     save_checkpoint(hedged, args.out, meta, dtype=torch.float16)
     print(f"wrote {args.out}")
     return 0

@@ -44,9 +44,7 @@ from lwm_models.world.shipped import WORLD_MODELS  # noqa: E402
 
 # The paper's figures by the kind they belong to: a hedged EMMA-LWM is EMMA-LWM read differently.
 PAPER_KIND = {"emma-hedged": "emma"}
-SHIPPED = tuple(
-    (m.key, PAPER_KIND.get(m.kind, m.kind), m.title, f"table1-2/{m.directory}.json") for m in WORLD_MODELS
-)
+SHIPPED = tuple((m.key, PAPER_KIND.get(m.kind, m.kind), m.title, f"table1-2/{m.directory}.json") for m in WORLD_MODELS)
 TABLE3_MODELS = (("observational", "Observational"), ("emma", "EMMA-LWM"), ("oracle", "OracleParse"))
 TABLE3_SETTINGS = (("online_il", "Online IL"), ("filtered_bc", "Filtered BC"))
 SPLIT_HEAD = "| NewCombo | NewAttr | NewAll |"

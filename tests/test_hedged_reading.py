@@ -44,10 +44,14 @@ def test_a_reading_the_words_contradict_is_replaced_by_what_they_allow(hedged):
     keys, values = pk[a].expand(1, 2, -1).clone(), pv[a].expand(1, 2, -1).clone()
     codes = torch.tensor([[words_code("the plane chases you and it is deadly."),
                            words_code("the plane chases you and it is the goal.")]])  # fmt: skip
-    k, v, stands = hedge(keys, values, codes, pk, pv)
+    k, v, stands = hedge(keys, values, codes, pk, pv, stand_distance=-1.0)  # none stands by nearness alone
     assert stands.tolist() == [[True, False]]
     assert torch.equal(k[0, 0], keys[0, 0]) and torch.equal(v[0, 0], values[0, 0])
     assert torch.allclose(k[0, 1], pk[b]) and torch.allclose(v[0, 1], pv[b])
+    # A reading as near a prototype as the dataset's own text is read stands whatever the words say.
+    assert 0 < float(model.stand_distance) < 10
+    _, _, stands = hedge(keys, values, codes, pk, pv, model.stand_distance)
+    assert stands.all()
     # Words that leave the role open: the mean of the three roles' prototypes.
     open_role = [ALL_TRIPLES.index(("airplane", "chaser", r)) for r in ("enemy", "message", "goal")]
     far = torch.full_like(keys, 100.0)  # nearest to no candidate of these words

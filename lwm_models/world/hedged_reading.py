@@ -42,6 +42,7 @@ from .frozen_text import FrozenTextEncoder
 from .manual import ManualBatch
 
 PROTOTYPE_TEXTS = 24  # generated descriptions per triple averaged into its prototype
+STAND_QUANTILE = 0.5  # of the training descriptions' distances to their nearest prototype
 _TRIPLE_FIELDS = torch.tensor(
     [[IDENTITIES[i], MOVEMENTS.index(m), ROLES.index(r)] for i, m, r in ALL_TRIPLES], dtype=torch.long
 )  # [108, 3]: identity id, movement index, role index
@@ -79,19 +80,34 @@ def candidates(codes: torch.Tensor) -> torch.Tensor:
     return ok
 
 
+def prototype_distances(
+    keys: torch.Tensor, values: torch.Tensor, proto_keys: torch.Tensor, proto_values: torch.Tensor
+) -> torch.Tensor:
+    """[..., 108]: the distance of each reading (keys, values [..., W]) to each prototype, keys
+    and values each scaled by the prototypes' spread."""
+    scale_k, scale_v = proto_keys.std(), proto_values.std()
+    mine = torch.cat([keys / scale_k, values / scale_v], -1)
+    protos = torch.cat([proto_keys / scale_k, proto_values / scale_v], -1)  # [108, 2W]
+    return torch.cdist(mine.reshape(-1, mine.shape[-1]), protos).view(*mine.shape[:-1], len(protos))
+
+
 def hedge(
-    keys: torch.Tensor, values: torch.Tensor, codes: torch.Tensor, proto_keys: torch.Tensor, proto_values: torch.Tensor
+    keys: torch.Tensor,
+    values: torch.Tensor,
+    codes: torch.Tensor,
+    proto_keys: torch.Tensor,
+    proto_values: torch.Tensor,
+    stand_distance: float = 0.0,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """keys, values [B, 3, W] as the model reads them, codes [B, 3] -> the keys and values to
-    condition on, and [B, 3] bool: True where the model's reading stood."""
-    scale_k, scale_v = proto_keys.std(), proto_values.std()
-    mine = torch.cat([keys / scale_k, values / scale_v], -1)  # [B, 3, 2W]
-    protos = torch.cat([proto_keys / scale_k, proto_values / scale_v], -1)  # [108, 2W]
-    nearest = torch.cdist(mine.flatten(0, 1), protos).argmin(-1).view(codes.shape)
+    condition on, and [B, 3] bool: True where the model's reading stood (its nearest prototype
+    agrees with the words, or lies within `stand_distance` of it)."""
+    distances = prototype_distances(keys, values, proto_keys, proto_values)
+    closest, nearest = distances.min(-1)
     allowed = candidates(codes)
     none_allowed = ~allowed.any(-1, keepdim=True)
     allowed = allowed | none_allowed  # words that fit no triple leave everything open
-    stands = allowed.gather(-1, nearest[..., None]).squeeze(-1)
+    stands = allowed.gather(-1, nearest[..., None]).squeeze(-1) | (closest <= stand_distance)
     weights = allowed.float() / allowed.sum(-1, keepdim=True)
     hedged_k, hedged_v = weights @ proto_keys, weights @ proto_values
     keep = stands[..., None]
@@ -110,6 +126,9 @@ class HedgedEmmaLWM(EmmaLWM):
         h = config.decoder.hidden
         self.register_buffer("proto_keys", torch.zeros(len(ALL_TRIPLES), h))
         self.register_buffer("proto_values", torch.zeros(len(ALL_TRIPLES), h))
+        # A reading this near its nearest prototype stands whatever the words say: the median such
+        # distance of the dataset's training descriptions (`fit_stand_distance`).
+        self.register_buffer("stand_distance", torch.zeros(()))
 
     def read_manual(self, descriptions, encoder, parse=None) -> ManualBatch:
         batch = super().read_manual(descriptions, encoder)
@@ -121,7 +140,7 @@ class HedgedEmmaLWM(EmmaLWM):
             raise ValueError("a hedged EMMA-LWM needs the manual's encoded descriptions and their words")
         tokens = self.text_encoder(manual.features, manual.mask)
         keys, values = self.reader.read(tokens, manual.mask)
-        keys, values, _ = hedge(keys, values, manual.routed, self.proto_keys, self.proto_values)
+        keys, values, _ = hedge(keys, values, manual.routed, self.proto_keys, self.proto_values, self.stand_distance)
         ids = torch.arange(NUM_IDS, device=tokens.device)
         return Conditioning(id_table=self.reader.attend(keys, values, self.obs_embedding(ids)))
 
@@ -132,7 +151,7 @@ class HedgedEmmaLWM(EmmaLWM):
         filled them in itself) or it imagines a mixture of what the words allow."""
         tokens = self.text_encoder(manual.features, manual.mask)
         keys, values = self.reader.read(tokens, manual.mask)
-        _, _, stands = hedge(keys, values, manual.routed, self.proto_keys, self.proto_values)
+        _, _, stands = hedge(keys, values, manual.routed, self.proto_keys, self.proto_values, self.stand_distance)
         out = []
         for code, stood in zip(manual.routed[0].tolist(), stands[0].tolist()):
             decided = (code // 16 > 0, (code // 4) % 4 > 0, code % 4 > 0)
@@ -157,5 +176,19 @@ class HedgedEmmaLWM(EmmaLWM):
             self.proto_keys[t] = keys[:, 0].mean(0)
             self.proto_values[t] = values[:, 0].mean(0)
 
+    @torch.no_grad()
+    def fit_stand_distance(
+        self, encoder: FrozenTextEncoder, texts: list[str], quantile: float = STAND_QUANTILE
+    ) -> None:
+        """The distance within which a reading stands whatever the words say: the `quantile` of the
+        distances of `texts` (the dataset's training descriptions) to their nearest prototype. A
+        description read as near a prototype as most of the training text is read is one the model
+        reads in its own language."""
+        features, mask = encoder.keeping(self.config.text.max_tokens).encode(texts)
+        tokens = self.text_encoder(features[:, None].float(), mask[:, None])
+        keys, values = self.reader.read(tokens, mask[:, None])
+        closest = prototype_distances(keys[:, 0], values[:, 0], self.proto_keys, self.proto_values).min(-1).values
+        self.stand_distance.fill_(float(closest.quantile(quantile)))
 
-__all__ = ["HedgedEmmaLWM", "candidates", "hedge", "words_code"]
+
+__all__ = ["HedgedEmmaLWM", "candidates", "hedge", "prototype_distances", "words_code"]
