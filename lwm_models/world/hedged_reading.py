@@ -50,17 +50,21 @@ _TRIPLE_FIELDS = torch.tensor(
 )  # [108, 3]: identity id, movement index, role index
 
 
+NAME_TOKENS = 36  # encoder tokens the words are read with, whichever encoder is shared
+
+
 @lru_cache(maxsize=1)
 def _name_encoder() -> FrozenTextEncoder:
-    return FrozenTextEncoder()
+    return FrozenTextEncoder(max_tokens=NAME_TOKENS)
 
 
-def words_code(text: str) -> int:
+def words_code(text: str, encoder: FrozenTextEncoder | None = None) -> int:
     """What a description's words decide, as one int: identity id * 16 + (movement index + 1) * 4
     + (role index + 1); 0 marks a field left open (the identity is open only when no name is
     near). A movement keyword counts only where the encoder's nearest movement phrase agrees
-    ("non-moving" holds the keyword "moving")."""
-    encoder = _name_encoder()
+    ("non-moving" holds the keyword "moving"). `encoder`: a loaded frozen encoder to share (its
+    text model, at the default length, so the answer does not depend on who asks)."""
+    encoder = _name_encoder() if encoder is None else encoder.keeping(NAME_TOKENS)
     identity = parse_identity(text, encoder)
     movement, role = parse_movement(text), parse_role(text)
     if movement is not None and nearest_value(text, "movement", encoder) != movement:
@@ -134,16 +138,19 @@ class HedgedEmmaLWM(EmmaLWM):
 
     def read_manual(self, descriptions, encoder, parse=None) -> ManualBatch:
         batch = super().read_manual(descriptions, encoder)
-        batch.routed = torch.tensor([[words_code(d) for d in descriptions]])
+        batch.routed = torch.tensor([[words_code(d, encoder) for d in descriptions]])
         return batch
 
-    def condition(self, manual: ManualBatch) -> Conditioning:
+    def _hedged(self, manual: ManualBatch) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """The keys and values [B, 3, W] to condition on, and where the model's reading stood."""
         if manual.features is None or manual.mask is None or manual.routed is None:
             raise ValueError("a hedged EMMA-LWM needs the manual's encoded descriptions and their words")
-        tokens = self.text_encoder(manual.features, manual.mask)
-        keys, values = self.reader.read(tokens, manual.mask)
-        keys, values, _ = hedge(keys, values, manual.routed, self.proto_keys, self.proto_values, self.stand_distance)
-        ids = torch.arange(NUM_IDS, device=tokens.device)
+        keys, values = self.reader.read(self.text_encoder(manual.features, manual.mask), manual.mask)
+        return hedge(keys, values, manual.routed, self.proto_keys, self.proto_values, self.stand_distance)
+
+    def condition(self, manual: ManualBatch) -> Conditioning:
+        keys, values, _ = self._hedged(manual)
+        ids = torch.arange(NUM_IDS, device=keys.device)
         return Conditioning(id_table=self.reader.attend(keys, values, self.obs_embedding(ids)))
 
     @torch.no_grad()
@@ -151,9 +158,7 @@ class HedgedEmmaLWM(EmmaLWM):
         """Per description of a batch-of-one manual: the fields ("identity", "movement", "role") its
         words leave open (`open`), and whether the world model's own reading stood (`guessed`: it
         filled them in itself) or it imagines a mixture of what the words allow."""
-        tokens = self.text_encoder(manual.features, manual.mask)
-        keys, values = self.reader.read(tokens, manual.mask)
-        _, _, stands = hedge(keys, values, manual.routed, self.proto_keys, self.proto_values, self.stand_distance)
+        _, _, stands = self._hedged(manual)
         out = []
         for code, stood in zip(manual.routed[0].tolist(), stands[0].tolist()):
             decided = (code // 16 > 0, (code // 4) % 4 > 0, code % 4 > 0)
@@ -168,15 +173,12 @@ class HedgedEmmaLWM(EmmaLWM):
         from ..text.pools import DescriptionPools
 
         pools = DescriptionPools.generated()
-        encoder = encoder.keeping(self.config.text.max_tokens)
         for t, triple in enumerate(ALL_TRIPLES):
             pool = sorted(set(pools.pool(None, triple)))
             order = np.random.default_rng([seed, t]).permutation(len(pool))[:PROTOTYPE_TEXTS]
-            features, mask = encoder.encode([pool[i] for i in order])
-            tokens = self.text_encoder(features[:, None].float(), mask[:, None])
-            keys, values = self.reader.read(tokens, mask[:, None])
-            self.proto_keys[t] = keys[:, 0].mean(0)
-            self.proto_values[t] = values[:, 0].mean(0)
+            keys, values = self._read_texts(encoder, [pool[i] for i in order])
+            self.proto_keys[t] = keys.mean(0)
+            self.proto_values[t] = values.mean(0)
 
     @torch.no_grad()
     def fit_stand_distance(
@@ -186,11 +188,16 @@ class HedgedEmmaLWM(EmmaLWM):
         distances of `texts` (the dataset's training descriptions) to their nearest prototype. A
         description read as near a prototype as most of the training text is read is one the model
         reads in its own language."""
-        features, mask = encoder.keeping(self.config.text.max_tokens).encode(texts)
-        tokens = self.text_encoder(features[:, None].float(), mask[:, None])
-        keys, values = self.reader.read(tokens, mask[:, None])
-        closest = prototype_distances(keys[:, 0], values[:, 0], self.proto_keys, self.proto_values).min(-1).values
+        keys, values = self._read_texts(encoder, texts)
+        closest = prototype_distances(keys, values, self.proto_keys, self.proto_values).min(-1).values
         self.stand_distance.fill_(float(closest.quantile(quantile)))
+
+    def _read_texts(self, encoder: FrozenTextEncoder, texts: list[str]) -> tuple[torch.Tensor, torch.Tensor]:
+        """The key and value [N, W] this model reads from each text alone (reader_tuning.reading)."""
+        from .reader_tuning import reading  # the tuning module: only needed when fitting
+
+        features, mask = encoder.keeping(self.config.text.max_tokens).encode(texts)
+        return reading(self, features.float(), mask)
 
 
 __all__ = ["HedgedEmmaLWM", "candidates", "hedge", "prototype_distances", "words_code"]

@@ -61,7 +61,7 @@ class ManualState:
 
     manual: list[str] | None = None
     reading: list[str | None] | None = None  # the identity the model reads each description as about
-    unsure: list[list[str]] | None = None  # per description, what a hedged model leaves open
+    unsure: list[dict] | None = None  # per description, what its words leave unclear (reading.unsure_fields)
     version: int = 0
     source: str = ""
     game: str = ""  # split:index of the last environment manual
