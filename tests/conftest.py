@@ -13,7 +13,7 @@ def pytest_configure(config: pytest.Config) -> None:
     config.addinivalue_line("markers", "system: starts the whole ROS system in processes (tens of seconds each)")
     if os.environ.get("PYTEST_XDIST_WORKER"):
         # Two workers on two cores: torch's default of a thread per core would put four spinning
-        # threads on two cores, and an in-process test then ran up to 60x slower (measured).
+        # threads on two cores, and an in-process test then ran 54x slower (measured).
         # Processes the tests start inherit the setting unless they choose their own.
         os.environ["OMP_NUM_THREADS"] = "1"
         import torch
