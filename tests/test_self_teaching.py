@@ -187,3 +187,36 @@ def test_teaching_in_turn_still_lifts_the_warm_start(encoder, emma):
     before = evaluate_real(warm, game, policy_manual(manual, encoder), 48, 0).mean
     after = evaluate_real(policy, game, policy_manual(manual, encoder), 48, 0).mean
     assert after >= before + 0.5, (before, after)
+
+
+def test_a_stop_during_the_question_ends_the_teaching_before_the_round_s_fitting(encoder, emma):
+    """A person's "stop" arrives while the agent waits for their labels: the round's fitting
+    (hundreds of steps on a loaded machine) must not run after it, so the policy is left as it was
+    when they stopped, and no later round asks again."""
+    game = load_split("newall-test")[120]
+    env = MessengerEnv(game, pools=DescriptionPools.generated(), split="newall-test")
+    env.reset(0)
+    manual = env.manual
+    imaginer = LocalImaginer(emma, emma.read_manual(manual, encoder, list(game.triples)))
+    policy = load_policy(SHIPPED_POLICY)
+    before = copy.deepcopy(policy.state_dict())
+    stopped, asked = {"now": False}, []
+
+    def ask(hist, obs, steps, traj, round_no):
+        asked.append(round_no)
+        stopped["now"] = True  # the person says "stop" instead of labelling
+        return np.full(len(obs), -1, dtype=np.int64)
+
+    teaching = Teaching(rounds=3, episodes=8, grad_steps=50, overlap=False, fill=True, label_budget=30)
+    result = teach(policy, imaginer, policy_manual(manual, encoder), start_observations(game), teaching, ask,
+                   should_stop=lambda: stopped["now"])  # fmt: skip
+    assert asked == [1] and result.rounds <= 1
+    after = policy.state_dict()
+    assert all(torch.equal(before[k], after[k]) for k in before), "the policy was fitted after the stop"
+
+    # Without the stop the same round does fit: the check above can fail.
+    taught = load_policy(SHIPPED_POLICY)
+    teach(taught, imaginer, policy_manual(manual, encoder), start_observations(game),
+          Teaching(rounds=1, episodes=8, grad_steps=5, overlap=False, fill=True, label_budget=10),
+          lambda hist, obs, *_: np.full(len(obs), -1, dtype=np.int64))  # fmt: skip
+    assert any(not torch.equal(before[k], v) for k, v in taught.state_dict().items())

@@ -91,10 +91,13 @@ def fit_labels(
     batch: int = 256,
     seed: int = 0,
     optimizer: torch.optim.Optimizer | None = None,
+    should_stop: Callable[[], bool] = lambda: False,
 ) -> list[float]:
     """Supervised steps on (3-observation history, expert action) pairs of one manual: minibatches
     of `batch` drawn at random (the whole set when it is smaller). Returns the losses. Pass an
-    optimizer to carry its state across calls (online imitation); else a fresh Adam at `lr`."""
+    optimizer to carry its state across calls (online imitation); else a fresh Adam at `lr`.
+    `should_stop` is asked before every step: a person's "stop" ends a round's fitting at once
+    (a round is hundreds of steps, seconds on a loaded machine)."""
     h = torch.from_numpy(np.ascontiguousarray(history))
     y = torch.as_tensor(np.asarray(labels, dtype=np.int64))
     opt = optimizer or torch.optim.Adam(policy.parameters(), lr=lr)
@@ -102,6 +105,8 @@ def fit_labels(
     losses = []
     policy.train()
     for _ in range(steps):
+        if should_stop():
+            break
         i = torch.from_numpy(rng.integers(len(h), size=batch)) if len(h) > batch else slice(None)
         loss = F.cross_entropy(policy(h[i], policy.id_values(manual).expand(len(y[i]), -1, -1)), y[i])
         opt.zero_grad()
@@ -388,9 +393,11 @@ def online_imitation(
             return
         h, y = labelled.arrays()
         round_losses = fit_labels(
-            policy, manual, h, y, budget.grad_steps, budget.lr, budget.batch, seed * 10_000 + u, opt
+            policy, manual, h, y, budget.grad_steps, budget.lr, budget.batch, seed * 10_000 + u, opt, should_stop
         )
         spend("fit", began)
+        if not round_losses:  # stopped before its first step
+            return
         losses.append(float(np.mean(round_losses)))
         if on_round is not None:
             on_round(u + 1, losses[-1], len(labelled))

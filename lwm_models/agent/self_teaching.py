@@ -233,7 +233,8 @@ def teach(
             began = spend("label", began)
             # Overlapped, what the last round's learning did not hide behind this round counts as fitting.
             behind.learn(
-                fit_labels, policy, manual, h, y, config.grad_steps, config.lr, config.batch, seed * 10_000 + u, opt
+                fit_labels, policy, manual, h, y, config.grad_steps, config.lr, config.batch, seed * 10_000 + u, opt,
+                should_stop,
             )
             spend("fit", began)
             result.rounds = u + 1
