@@ -2,12 +2,15 @@
 
 Every phrase was written for this project (the banks are in lwm_models/text/free_form.py).
 The set covers all 108 (identity, movement, role) triples in each of seven styles, and it has
-two parts that share no template and as few phrases as possible:
+three parts that share no template and as few phrases as possible:
 
 - "tune": one description per (style, triple); the keyword parser may be tuned on it, a model may
   be trained on it;
 - "heldout": two descriptions per (style, triple), written with other templates, other synonyms,
-  other movement and role phrases and other typo kinds; nothing is ever tuned or trained on it.
+  other movement and role phrases and other typo kinds; nothing is ever tuned or trained on it;
+- "dev": one description per (style, triple) from a third bank; it may choose between ways of
+  reading, but nothing is trained on it and the parser is not tuned on it. It is drawn after the
+  other two, so adding it left them unchanged.
 
 So held-out accuracy measures reading of wording the tuning never saw, not of unseen rows of seen
 templates. The output is deterministic (seeded), so re-running this script changes nothing unless
@@ -36,7 +39,7 @@ OUT = ROOT / "lwm_models" / "text" / "stress_set.json"
 def build() -> list[dict]:
     rng = np.random.default_rng(30)
     entries = []
-    for part, per_triple in (("tune", 1), ("heldout", 2)):
+    for part, per_triple in (("tune", 1), ("heldout", 2), ("dev", 1)):
         for style in STYLES:
             for triple in ALL_TRIPLES:
                 made: set[str] = set()
@@ -62,21 +65,23 @@ def build() -> list[dict]:
 
 def main() -> int:
     entries = build()
-    tune = {e["text"] for e in entries if e["split"] == "tune"}
-    overlap = [e["text"] for e in entries if e["split"] == "heldout" and e["text"] in tune]
-    if overlap:
-        raise SystemExit(f"{len(overlap)} held-out descriptions also in the tuning part, e.g. {overlap[0]!r}")
+    for part in ("tune", "dev"):
+        seen = {e["text"] for e in entries if e["split"] == part}
+        overlap = [e["text"] for e in entries if e["split"] == "heldout" and e["text"] in seen]
+        if overlap:
+            raise SystemExit(f"{len(overlap)} held-out descriptions also in the {part} part, e.g. {overlap[0]!r}")
     doc = {
         "_about": [
             "The project's free-form stress set of Messenger descriptions (issue 30), written for the project.",
-            "Built by scripts/make_stress_set.py; each entry's split is 'tune' (may be tuned or trained on) or",
-            "'heldout' (never tuned or trained on). The parts use different templates and phrase banks.",
+            "Built by scripts/make_stress_set.py; each entry's split is 'tune' (may be tuned or trained on),",
+            "'dev' (may choose between ways of reading, never trained or tuned on) or 'heldout' (never tuned or",
+            "trained on). The parts use different templates and phrase banks.",
         ],
         "styles": list(STYLES),
         "entries": entries,
     }
     OUT.write_text(json.dumps(doc, indent=1, ensure_ascii=False) + "\n", encoding="utf-8")
-    counts = {part: sum(e["split"] == part for e in entries) for part in ("tune", "heldout")}
+    counts = {part: sum(e["split"] == part for e in entries) for part in ("tune", "dev", "heldout")}
     print(f"{OUT.relative_to(ROOT)}: {len(entries)} descriptions, {counts}")
     return 0
 

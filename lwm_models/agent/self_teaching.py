@@ -235,7 +235,7 @@ def teach(
             behind.learn(
                 fit_labels, policy, manual, h, y, config.grad_steps, config.lr, config.batch, seed * 10_000 + u, opt,
                 should_stop,
-            )
+            )  # fmt: skip
             spend("fit", began)
             result.rounds = u + 1
             result.self_labelled = len(labels)

@@ -1,8 +1,11 @@
 """Free-form Messenger descriptions written from hand-made phrase banks (issue 30).
 
-Two banks that share no template and as few phrases as possible:
+Three banks that share no template and as few phrases as possible:
 
 - "tune": what the keyword parser may be tuned on and a world model may be trained on;
+- "dev": what chooses between ways of reading (e.g. the hedged reading's rule); nothing is
+  trained on it and the parser is not tuned on it, so it shows how a choice fares on wording
+  the parser never saw;
 - "heldout": what measures reading; nothing is ever tuned or trained on it.
 
 `scripts/make_stress_set.py` writes the stress set (`stress_set.json`) from both banks.
@@ -227,12 +230,100 @@ BANKS = {
         },
         "typo_kind": "drop-double",
     },
+    "dev": {
+        "rare_identity": {
+            "airplane": ["seaplane", "airliner", "flying machine"],
+            "mage": ["necromancer", "spellcaster", "conjurer"],
+            "dog": ["cur", "terrier", "four-legged barker"],
+            "bird": ["sparrow", "robin", "winged thing"],
+            "fish": ["trout", "carp", "scaly swimmer"],
+            "scientist": ["lab coat", "researcher in goggles", "professor"],
+            "thief": ["bandit", "swindler", "light-fingered rogue"],
+            "ship": ["frigate", "clipper", "vessel"],
+            "ball": ["sphere toy", "rubber ball", "bouncer"],
+            "robot": ["cyborg", "metal man", "mech"],
+            "queen": ["matriarch", "ruler", "crowned lady"],
+            "sword": ["scimitar", "saber", "blade of steel"],
+        },
+        "role": {
+            "enemy": ["the danger", "a murderer", "the one that kills you", "bad news", "trouble"],
+            "message": ["the package", "the thing you must pick up", "where the message is", "the letter carrier"],
+            "goal": ["the target", "the delivery point", "where you bring the message", "the recipient"],
+        },
+        "rare_role": {
+            "enemy": ["pernicious", "a bloodthirsty assailant", "an executioner"],
+            "message": ["the parcel bearer", "the custodian of the note", "the holder of the scroll"],
+            "goal": ["the intended recipient", "the journey's end", "the drop site"],
+        },
+        "not_role": {
+            "enemy": ["harmful", "the killer", "out to hurt you"],
+            "message": ["the package", "where the letter is", "the carrier"],
+            "goal": ["the recipient", "where the letter goes", "the delivery point"],
+        },
+        "move": {
+            "chaser": ["comes for you", "follows you around", "tracks you", "goes after you", "approaches you"],
+            "fleeing": ["flees from you", "runs off", "escapes from you", "gets away from you", "moves away from you"],
+            "immovable": ["stays where it is", "is stuck", "remains still", "is motionless", "is still"],
+        },
+        "rare_move": {
+            "chaser": ["stalks you", "trails you", "is in hot pursuit"],
+            "fleeing": ["withdraws", "evades you", "makes itself scarce"],
+            "immovable": ["is static", "is fixed in place", "is parked for good"],
+        },
+        "not_move": {
+            "chaser": ["isn't chasing you", "doesn't follow you"],
+            "fleeing": ["isn't running away", "doesn't escape"],
+            "immovable": ["isn't still", "doesn't stay put"],
+        },
+        "adj_move": {"chaser": "relentless", "fleeing": "shy", "immovable": "idle"},
+        "templates": {
+            "casual": [
+                "the {I}: {R}. {M} too",
+                "btw the {I} {M}, pretty sure it's {R}",
+                "{I}? it's {R} and {M} lol",
+            ],
+            "long-winded": [
+                "Before you set off, there is one more piece of the puzzle to consider, namely the {I}; from what "
+                "we have seen it {M}, and, importantly for how you play, it is {R} in this round.",
+                "I should mention, for the sake of completeness and so you are not caught off guard, that the {I} "
+                "is {R}, and also that, throughout the whole episode, it {M}.",
+            ],
+            "negation": [
+                "the {I}, which {M}, is {R} and not {NR}.",
+                "no, the {I} is not {NR}; it's {R}, and it {M}",
+                "the {I} isn't {NR2}. it {M} and it's {R}",
+                "careful: the {I} {NM}. it {M}, and it is {R}.",
+            ],
+            "typos": [
+                "teh {I} is {R} and {M}",
+                "the {I} {M}. its {R}",
+            ],
+            "rare-synonyms": [
+                "the {I} is {R}; it {M}.",
+                "mark the {I}: it {M} and is {R}.",
+            ],
+            "reordered": [
+                "{M}, that {I} does, and {R} it is.",
+                "being {R}, the {I} {M}.",
+            ],
+            "multi-fact": [
+                "the {A} {I} {M}; it is {R}, and it is larger than the others.",
+                "the {I} is {R}, it {M}, and the {A} {I} is easy to spot on the board.",
+            ],
+        },
+        "typo_kind": "neighbour",
+    },
 }
+
+
+# A key's neighbour on a QWERTY keyboard, one each: the development part's typos.
+NEIGHBOUR = dict(zip("abcdefghijklmnopqrstuvwxyz", "snvfrghjoklknmpowtdyibecux"))
 
 
 def typo(text: str, kind: str, rng: np.random.Generator) -> str:
     """Misspell about every third word of four letters or more: adjacent letters swapped ("swap")
-    in the tuning part, a letter dropped or doubled ("drop-double") in the held-out part."""
+    in the tuning part, a letter dropped or doubled ("drop-double") in the held-out part, a letter
+    struck by its neighbouring key ("neighbour") in the development part."""
     words = text.split(" ")
     for k, w in enumerate(words):
         core = w.strip(".,;:!?'")
@@ -241,6 +332,8 @@ def typo(text: str, kind: str, rng: np.random.Generator) -> str:
         i = int(rng.integers(1, len(core) - 1))
         if kind == "swap":
             new = core[:i] + core[i + 1] + core[i] + core[i + 2 :]
+        elif kind == "neighbour":  # a letter struck by the key beside it
+            new = core[:i] + NEIGHBOUR.get(core[i], core[i]) + core[i + 1 :]
         elif rng.random() < 0.5:
             new = core[:i] + core[i + 1 :]
         else:

@@ -2,7 +2,8 @@
 
 Descriptions in seven styles (casual, long-winded, negation, typos, rare synonyms, reordered
 clauses, several facts per sentence), each labelled with its (identity, movement, role), its style
-and its part: "tune" may be tuned or trained on, "heldout" never is. The parts were written with
+and its part: "tune" may be tuned or trained on; "dev" may choose between ways of reading but is
+never trained or tuned on; "heldout" is never used for either. The parts were written with
 different templates and phrases, so a figure on "heldout" is one on wording its tuning never saw.
 
 `stress_pools` turns one style of one part into description pools of the same shape as the
@@ -23,7 +24,7 @@ from ..messenger.constants import ALL_TRIPLES, SPLITS, Triple
 from .pools import DescriptionPools, receiving_splits
 
 STRESS_FILE = Path(__file__).with_name("stress_set.json")
-PARTS = ("tune", "heldout")
+PARTS = ("tune", "dev", "heldout")
 
 
 @dataclass(frozen=True)
@@ -54,7 +55,7 @@ def stress_styles(path: str | Path = STRESS_FILE) -> tuple[str, ...]:
 
 
 def load_stress(part: str | None = None, style: str | None = None, path: str | Path = STRESS_FILE) -> list[StressEntry]:
-    """Entries of the stress set, optionally only one part ("tune" / "heldout") and one style."""
+    """Entries of the stress set, optionally only one part ("tune" / "dev" / "heldout") and one style."""
     styles, entries = _load(Path(path))
     if part is not None and part not in PARTS:
         raise LwmError(f"unknown stress-set part {part!r}; known: {', '.join(PARTS)}")
