@@ -110,3 +110,51 @@ def test_the_server_says_what_the_words_leave_open_and_whether_the_model_guessed
     reading, note = notes["emma-lwm-reader"]
     assert reading[2]["unsure"] == ["role"] and reading[2]["guessed"] is True
     assert '"the thing that stays put is not the goal." leaves its role unclear (the world model guessed)' in note
+
+
+def test_hedge_practice_opens_fields_of_the_words_and_hedges_only_what_it_picked():
+    from lwm_models.world.hedged_reading import practice_codes
+
+    torch.manual_seed(0)
+    codes = torch.tensor([[words_code("the plane chases you and it is deadly.")] * 3] * 400)
+    same, force = practice_codes(codes, 0.0)
+    assert torch.equal(same, codes) and not force.any()
+    practised, force = practice_codes(codes, 0.5)
+    assert 0.4 < force.float().mean() < 0.6
+    assert torch.equal(practised[~force], codes[~force])  # unpicked descriptions keep their words
+    assert torch.equal(practised // 16, codes // 16)  # the identity is never opened
+    opened_movement = (practised // 4) % 4 == 0
+    opened_role = practised % 4 == 0
+    assert 0.35 < opened_movement[force].float().mean() < 0.65 and 0.35 < opened_role[force].float().mean() < 0.65
+    # what the practice hedges is exactly the mean prototype of what its words allow
+    model, _ = load_checkpoint(HEDGED, kind="emma-hedged")
+    pk, pv = model.proto_keys, model.proto_values
+    keys, values = pk[0].expand(400, 3, -1).clone(), pv[0].expand(400, 3, -1).clone()
+    k, _, stands = hedge(keys, values, practised, pk, pv, stand_distance=1e9, force=force)
+    assert torch.equal(stands, ~force)
+    i, j = map(int, torch.nonzero(force & opened_role & ~opened_movement)[0])
+    assert torch.allclose(k[i, j], pk[candidates(practised[i, j])].mean(0), atol=1e-6)
+
+
+def test_hedge_practice_trains_the_decoder_and_leaves_the_reader_and_its_prototypes_alone(tmp_path, capsys):
+    from lwm_models.cli import main as cli_main
+
+    model, _ = load_checkpoint(HEDGED, kind="emma-hedged")
+    model.practise_hedges(1.0)
+    frozen = [n for n, p in model.named_parameters() if not p.requires_grad]
+    trained = [n for n, p in model.named_parameters() if p.requires_grad]
+    assert any(n.startswith("text_encoder.") for n in frozen) and "reader.k.weight" in frozen
+    assert "reader.q.weight" in trained and any(n.startswith("obs_head") for n in trained)
+    manual = ["the plane chases you and it is deadly.", "the ball has the message and runs away from you.",
+              "the robot is the goal and it never moves."]  # fmt: skip
+    batch = model.read_manual(manual, model.frozen_text_encoder())
+    with torch.no_grad():
+        model.eval()
+        read = model.condition(batch).id_table
+        model.train()
+        practised = model.condition(batch).id_table
+    assert not torch.allclose(read, practised), "every description was to be hedged in training"
+    # a model that cannot hedge refuses the option in words
+    code = cli_main.main(["train", "--kind", "emma", "--data", str(tmp_path), "--out", str(tmp_path / "run"),
+                          "--hedge-practice", "0.5", "--steps", "1"])  # fmt: skip
+    assert code != 0 and "needs a hedged world model" in capsys.readouterr().err

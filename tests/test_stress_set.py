@@ -17,21 +17,20 @@ from lwm_models.text.stress import load_stress, stress_pools, stress_styles, str
 from lwm_models.world.shipped import SHIPPED
 
 
-def test_every_style_covers_every_triple_in_both_parts():
+def test_every_style_covers_every_triple_in_every_part():
     styles = stress_styles()
     assert len(styles) >= 6 and {"casual", "negation", "typos", "rare-synonyms"} <= set(styles)
     counts = Counter((e.split, e.style, e.triple) for e in load_stress())
     for style in styles:
         for triple in ALL_TRIPLES:
             assert counts[("tune", style, triple)] >= 1 and counts[("heldout", style, triple)] >= 2, (style, triple)
+            assert counts[("dev", style, triple)] >= 1, (style, triple)
 
 
 def test_the_parts_differ_in_wording_not_just_rows():
-    tune = load_stress("tune")
-    heldout = load_stress("heldout")
-    assert not {e.text for e in tune} & {e.text for e in heldout}
+    tune, dev, heldout = load_stress("tune"), load_stress("dev"), load_stress("heldout")
 
-    # word trigrams shared by the parts: few, since templates and phrase banks differ
+    # word trigrams shared by two parts: few, since templates and phrase banks differ
     def trigrams(entries):
         out = set()
         for e in entries:
@@ -39,11 +38,13 @@ def test_the_parts_differ_in_wording_not_just_rows():
             out.update(zip(words, words[1:], words[2:]))
         return out
 
-    shared = trigrams(tune) & trigrams(heldout)
-    assert len(shared) / len(trigrams(heldout)) < 0.1, sorted(shared)[:20]
+    for a, b in ((tune, heldout), (dev, heldout), (tune, dev)):
+        assert not {e.text for e in a} & {e.text for e in b}
+        shared = trigrams(a) & trigrams(b)
+        assert len(shared) / len(trigrams(b)) < 0.1, sorted(shared)[:20]
     # and none of the set is the project's generator's text
     generated = {t for triple in ALL_TRIPLES for t in generate_descriptions(triple)}
-    assert not generated & {e.text for e in tune + heldout}
+    assert not generated & {e.text for e in tune + dev + heldout}
 
 
 def test_stress_pools_have_the_shape_of_the_benchmark_pools():

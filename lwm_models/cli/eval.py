@@ -42,6 +42,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="re-draw the manuals from one style of the held-out stress set (lwm_models/text/stress_set.json)",
     )
     p.add_argument(
+        "--stress-part",
+        default="heldout",
+        choices=("heldout", "dev", "tune"),
+        help="with --stress: the part to draw from (dev chooses between ways of reading; figures to report: heldout)",
+    )
+    p.add_argument(
         "--no-fill",
         action="store_true",
         help="with --texts: refuse, instead of filling with generated text, when the files lack a triple in use",
@@ -73,7 +79,7 @@ def run(args: argparse.Namespace) -> int:
     elif args.stress:
         from ..text.stress import stress_pools
 
-        pools = stress_pools(args.stress)
+        pools = stress_pools(args.stress, args.stress_part)
     splits = {}
     filled: dict[str, dict[str, int]] = {}
     for name in args.splits:
@@ -102,7 +108,7 @@ def run(args: argparse.Namespace) -> int:
         "checkpoint": str(args.checkpoint),
         "kind": kind,
         "steps": config.get("steps"),
-        "texts": args.texts or (f"stress:heldout:{args.stress}" if args.stress else "dataset"),
+        "texts": args.texts or (f"stress:{args.stress_part}:{args.stress}" if args.stress else "dataset"),
         "filled_slots": filled,
         "seed": args.seed,
         "results": results,

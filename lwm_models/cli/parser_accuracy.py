@@ -13,7 +13,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--stress",
         action="store_true",
-        help="also the project's stress set, per part (tune, heldout) and style (lwm_models/text/stress_set.json)",
+        help="also the project's stress set, per part (tune, dev, heldout) and style (lwm_models/text/stress_set.json)",
     )
     p.add_argument(
         "--encoder",

@@ -261,9 +261,27 @@ BANKS = {
             "goal": ["the recipient", "where the letter goes", "the delivery point"],
         },
         "move": {
-            "chaser": ["comes for you", "follows you around", "tracks you", "goes after you", "approaches you"],
-            "fleeing": ["flees from you", "runs off", "escapes from you", "gets away from you", "moves away from you"],
-            "immovable": ["stays where it is", "is stuck", "remains still", "is motionless", "is still"],
+            "chaser": [
+                "is gunning for you",
+                "zeroes in on you",
+                "won't leave you alone",
+                "is hot on your heels",
+                "makes straight for you",
+            ],
+            "fleeing": [
+                "hightails it when you show up",
+                "is always on the run from you",
+                "gives you a wide berth",
+                "makes a run for it",
+                "darts off when you get close",
+            ],
+            "immovable": [
+                "never leaves its spot",
+                "is glued in place",
+                "stays planted",
+                "just sits there",
+                "is still as a statue",
+            ],
         },
         "rare_move": {
             "chaser": ["stalks you", "trails you", "is in hot pursuit"],

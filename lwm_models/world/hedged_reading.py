@@ -104,20 +104,36 @@ def hedge(
     proto_keys: torch.Tensor,
     proto_values: torch.Tensor,
     stand_distance: float = 0.0,
+    force: torch.Tensor | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """keys, values [B, 3, W] as the model reads them, codes [B, 3] -> the keys and values to
     condition on, and [B, 3] bool: True where the model's reading stood (its nearest prototype
-    agrees with the words, or lies within `stand_distance` of it)."""
+    agrees with the words, or lies within `stand_distance` of it). `force` [B, 3] bool: hedge
+    these whatever the reading (practice, `practice_codes`)."""
     distances = prototype_distances(keys, values, proto_keys, proto_values)
     closest, nearest = distances.min(-1)
     allowed = candidates(codes)
     none_allowed = ~allowed.any(-1, keepdim=True)
     allowed = allowed | none_allowed  # words that fit no triple leave everything open
     stands = allowed.gather(-1, nearest[..., None]).squeeze(-1) | (closest <= stand_distance)
+    if force is not None:
+        stands = stands & ~force
     weights = allowed.float() / allowed.sum(-1, keepdim=True)
     hedged_k, hedged_v = weights @ proto_keys, weights @ proto_values
     keep = stands[..., None]
     return torch.where(keep, keys, hedged_k), torch.where(keep, values, hedged_v), stands
+
+
+def practice_codes(codes: torch.Tensor, rate: float, open_rate: float = 0.5) -> tuple[torch.Tensor, torch.Tensor]:
+    """Training inputs for the decoder: which descriptions [B, 3] to hedge (each with probability
+    `rate`), and their words with the movement and the role each left open with probability
+    `open_rate`, so that the decoder sees the mean prototypes a hedge gives, the truth averaged
+    over what the words leave open, with its reward and movement to learn from."""
+    force = torch.rand(codes.shape, device=codes.device) < rate
+    movement_bits, role_bits = ((codes // 4) % 4) * 4, codes % 4
+    open_movement = force & (torch.rand(codes.shape, device=codes.device) < open_rate)
+    open_role = force & (torch.rand(codes.shape, device=codes.device) < open_rate)
+    return codes - open_movement * movement_bits - open_role * role_bits, force
 
 
 class HedgedEmmaLWM(EmmaLWM):
@@ -135,6 +151,17 @@ class HedgedEmmaLWM(EmmaLWM):
         # A reading this near its nearest prototype stands whatever the words say: the median such
         # distance of the dataset's training descriptions (`fit_stand_distance`).
         self.register_buffer("stand_distance", torch.zeros(()))
+        self.practice_rate = 0.0  # set by practise_hedges: training only
+
+    def practise_hedges(self, rate: float) -> None:
+        """Train the decoder on hedged readings (`lwm train --hedge-practice`): in training mode a
+        share `rate` of the descriptions is read as a hedge would read them (`practice_codes`).
+        The reader is frozen, so that the prototypes and the stand distance, readings of this
+        reader, stay true."""
+        self.practice_rate = rate
+        for part in (self.text_encoder, self.reader.key_pool, self.reader.value_pool, self.reader.k, self.reader.v):
+            if part is not None:
+                part.requires_grad_(False)
 
     def read_manual(self, descriptions, encoder, parse=None) -> ManualBatch:
         batch = super().read_manual(descriptions, encoder)
@@ -146,7 +173,10 @@ class HedgedEmmaLWM(EmmaLWM):
         if manual.features is None or manual.mask is None or manual.routed is None:
             raise ValueError("a hedged EMMA-LWM needs the manual's encoded descriptions and their words")
         keys, values = self.reader.read(self.text_encoder(manual.features, manual.mask), manual.mask)
-        return hedge(keys, values, manual.routed, self.proto_keys, self.proto_values, self.stand_distance)
+        codes, force = manual.routed, None
+        if self.training and self.practice_rate > 0:
+            codes, force = practice_codes(codes, self.practice_rate)
+        return hedge(keys, values, codes, self.proto_keys, self.proto_values, self.stand_distance, force)
 
     def condition(self, manual: ManualBatch) -> Conditioning:
         keys, values, _ = self._hedged(manual)
@@ -200,4 +230,4 @@ class HedgedEmmaLWM(EmmaLWM):
         return reading(self, features.float(), mask)
 
 
-__all__ = ["HedgedEmmaLWM", "candidates", "hedge", "prototype_distances", "words_code"]
+__all__ = ["HedgedEmmaLWM", "candidates", "hedge", "practice_codes", "prototype_distances", "words_code"]

@@ -39,6 +39,7 @@ WORLD_MODELS = (
     ShippedModel("emma-freeform", "emma-lwm-freeform", "emma", "EMMA-LWM free-form"),
     ShippedModel("emma-reader", "emma-lwm-reader", "emma", "EMMA-LWM, reader tuned"),
     ShippedModel("emma-hedged", "emma-lwm-hedged", "emma-hedged", "EMMA-LWM, reader tuned, hedged"),
+    ShippedModel("emma-practised", "emma-lwm-practised", "emma-hedged", "EMMA-LWM, hedged, practised"),
     ShippedModel("oracle", "oracle", "oracle", "OracleParse", table3=True),
 )
 POLICY = ShippedModel("policy-bc", "policy-bc", "policy", "warm-start policy")

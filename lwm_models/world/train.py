@@ -113,6 +113,14 @@ class TrainArgs:
             "teacher reads the dataset's, and keeps the teacher's dynamics where the text does not matter"
         },
     )
+    hedge_practice: float = field(
+        default=0.0,
+        metadata={
+            "help": "emma-hedged only: the share of training descriptions read as its hedge reads them (the mean "
+            "prototype of the triples the words allow, a field left open at random), so that the decoder learns to "
+            "imagine from a hedged reading; the reader is frozen"
+        },
+    )
     distill_weight: float = field(default=1.0, metadata={"help": "weight of the --distill term in the loss"})
     event_weight: float = field(
         default=1.0,
@@ -367,15 +375,21 @@ def train(args: TrainArgs, log=print) -> dict:
         config = type(config)(type(config.decoder)(**{**asdict(config.decoder), **overrides}), config.text)
     recover(last)
     resuming = (last / "config.json").is_file() and (last / "train_state.json").is_file()
+    made: dict = {}  # how the starting checkpoint's fitted buffers were made (a hedged model's prototypes)
     if resuming:
         model, saved = load_checkpoint(last, kind=args.kind)
+        made = saved
         if saved.get("preset") != args.preset:
             raise LwmError(f"{last} was trained with preset {saved.get('preset')!r}, not {args.preset!r}")
     elif args.init:
-        model, _ = load_checkpoint(args.init, kind=args.kind)
+        model, made = load_checkpoint(args.init, kind=args.kind)
     else:
         torch.manual_seed(args.seed)
         model = build_model(args.kind, config)
+    if args.hedge_practice > 0:
+        if not hasattr(model, "practise_hedges"):
+            raise LwmError(f"--hedge-practice needs a hedged world model (kind emma-hedged), not {args.kind!r}")
+        model.practise_hedges(args.hedge_practice)
     if args.max_tokens is not None:
         model.config = replace(model.config, text=replace(model.config.text, max_tokens=args.max_tokens))
     model.train()
@@ -417,6 +431,7 @@ def train(args: TrainArgs, log=print) -> dict:
         "train_args": asdict(args),
         "data": str(args.data),
         "text_encoder": encoder.name if encoder else None,
+        **({"hedged_reading": made["hedged_reading"]} if "hedged_reading" in made else {}),
     }
     metrics_path = out / "metrics.jsonl"
     writer = None
