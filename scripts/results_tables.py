@@ -445,6 +445,7 @@ LANGUAGE_MODELS = (
     ("emma-lwm-freeform", "EMMA-LWM free-form"),
     ("emma-lwm-reader", "EMMA-LWM, reader tuned"),
     ("emma-lwm-hedged", "EMMA-LWM, reader tuned, hedged"),
+    ("emma-lwm-practised", "EMMA-LWM, hedged, practised"),
     ("gpthard", "GPTHard"),
     ("observational", "Observational (reads no text)"),
 )
