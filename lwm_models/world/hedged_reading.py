@@ -25,6 +25,12 @@ Otherwise the reading becomes the mean prototype of the candidates: what the wor
 over what they leave open. (The rule was chosen among soft and hard variants by cross-entropy on
 the three dev splits with the dataset's descriptions; docs/language.md has the table.)
 
+A decoder trained only on the model's own readings imagines nonsense from a mean prototype over
+the three movements (NewAll-dev: 0.338, worse than reading nothing). `practise_hedges` (`lwm train
+--hedge-practice`) fine-tunes the decoder, the reader frozen, with a share of the descriptions read
+as the mean prototype of their words' triples, a field left open at random (`practice_codes`), so
+that it learns to imagine from a hedge (checkpoint `emma-lwm-practised`; docs/language.md).
+
 The words travel with the manual as `ManualBatch.routed`: one int per description (`words_code`),
 so datasets and the world-model server fill it as they fill GPTHard's routing.
 """
