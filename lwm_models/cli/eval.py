@@ -9,6 +9,7 @@ import time
 from pathlib import Path
 
 from ..messenger.constants import SPLITS
+from ..text.stress import PARTS
 from .args import checkpoint_dir, existing_dir, nonnegative_int, positive_int
 
 TEST_SPLITS = ["newcombo-test", "newattr-test", "newall-test"]
@@ -44,7 +45,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--stress-part",
         default="heldout",
-        choices=("heldout", "dev", "tune"),
+        choices=PARTS,
         help="with --stress: the part to draw from (dev chooses between ways of reading; figures to report: heldout)",
     )
     p.add_argument(

@@ -164,10 +164,11 @@ class HedgedEmmaLWM(EmmaLWM):
         share `rate` of the descriptions is read as a hedge would read them (`practice_codes`).
         The reader is frozen, so that the prototypes and the stand distance, readings of this
         reader, stay true."""
+        from .reader_tuning import reader_parameters  # the tuning module: only needed to train
+
         self.practice_rate = rate
-        for part in (self.text_encoder, self.reader.key_pool, self.reader.value_pool, self.reader.k, self.reader.v):
-            if part is not None:
-                part.requires_grad_(False)
+        for p in reader_parameters(self):
+            p.requires_grad_(False)
 
     def read_manual(self, descriptions, encoder, parse=None) -> ManualBatch:
         batch = super().read_manual(descriptions, encoder)

@@ -138,12 +138,18 @@ def _lr_at(step: int, args: ReaderTuningArgs) -> float:
     return warmup_cosine_lr(step, args.lr, args.warmup, args.steps)
 
 
-def trainable_reader(model: WorldModel) -> list[nn.Parameter]:
-    """Freeze everything but the reader; returns its parameters. The query projection stays: it
-    reads the decoder's id embeddings, and keys that match the old ones need the old queries."""
-    model.requires_grad_(False)
+def reader_parameters(model: WorldModel) -> list[nn.Parameter]:
+    """The parameters that turn a description into its key and value: the text encoder and the
+    description attention's pools and key/value projections. Not the query projection: it reads
+    the decoder's id embeddings, and keys that match the old ones need the old queries."""
     params = list(model.text_encoder.parameters())
-    params += [p for name, p in model.reader.named_parameters() if not name.startswith("q.")]
+    return params + [p for name, p in model.reader.named_parameters() if not name.startswith("q.")]
+
+
+def trainable_reader(model: WorldModel) -> list[nn.Parameter]:
+    """Freeze everything but the reader (`reader_parameters`); returns its parameters."""
+    model.requires_grad_(False)
+    params = reader_parameters(model)
     for p in params:
         p.requires_grad_(True)
     return params

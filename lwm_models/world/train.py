@@ -375,12 +375,11 @@ def train(args: TrainArgs, log=print) -> dict:
         config = type(config)(type(config.decoder)(**{**asdict(config.decoder), **overrides}), config.text)
     recover(last)
     resuming = (last / "config.json").is_file() and (last / "train_state.json").is_file()
-    made: dict = {}  # how the starting checkpoint's fitted buffers were made (a hedged model's prototypes)
+    made: dict = {}  # the starting checkpoint's config: how its fitted buffers were made (a hedged model's)
     if resuming:
-        model, saved = load_checkpoint(last, kind=args.kind)
-        made = saved
-        if saved.get("preset") != args.preset:
-            raise LwmError(f"{last} was trained with preset {saved.get('preset')!r}, not {args.preset!r}")
+        model, made = load_checkpoint(last, kind=args.kind)
+        if made.get("preset") != args.preset:
+            raise LwmError(f"{last} was trained with preset {made.get('preset')!r}, not {args.preset!r}")
     elif args.init:
         model, made = load_checkpoint(args.init, kind=args.kind)
     else:
