@@ -32,6 +32,7 @@ sys.path.insert(0, str(ROOT))
 
 from lwm_models.messenger.constants import ALL_TRIPLES  # noqa: E402
 from lwm_models.text.free_form import STYLES, describe  # noqa: E402
+from lwm_models.text.stress import PARTS  # noqa: E402
 
 OUT = ROOT / "lwm_models" / "text" / "stress_set.json"
 
@@ -81,7 +82,7 @@ def main() -> int:
         "entries": entries,
     }
     OUT.write_text(json.dumps(doc, indent=1, ensure_ascii=False) + "\n", encoding="utf-8")
-    counts = {part: sum(e["split"] == part for e in entries) for part in ("tune", "dev", "heldout")}
+    counts = {part: sum(e["split"] == part for e in entries) for part in PARTS}
     print(f"{OUT.relative_to(ROOT)}: {len(entries)} descriptions, {counts}")
     return 0
 
