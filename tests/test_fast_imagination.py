@@ -95,6 +95,26 @@ def test_speculation_past_a_done_and_over_many_rows(shipped, starts):
     np.testing.assert_allclose(fast.token_probs, reference.token_probs, rtol=0, atol=PROB_BOUND)
 
 
+def test_rows_cut_into_groups_on_lanes_sample_what_one_group_samples(shipped, starts, monkeypatch):
+    # 24 rows are stepped as groups on the lanes (lanes.py) on a machine with 2 cores or more; the
+    # rows are independent, so the tokens are those of one group over all rows.
+    model, manual = shipped
+    first = np.concatenate([starts] * 4)
+    ran = []
+    lanes = speculative.lanes()
+    if lanes is None:
+        pytest.skip("one core: a step is never cut into groups")
+    original = lanes.run
+    monkeypatch.setattr(lanes, "run", lambda work: ran.append(len(work)) or original(work))
+    cut = run(model, manual, first, "speculative", seed=3, stop_on_done=False)
+    assert ran and set(ran) == {min(lanes.count, len(first) // speculative.MIN_GROUP)}
+    monkeypatch.setattr(speculative, "MIN_GROUP", len(first) + 1)
+    whole = run(model, manual, first, "speculative", seed=3, stop_on_done=False)
+    assert len(ran) == STEPS  # the whole group ran on the caller's thread
+    assert_same_tokens(cut, whole)
+    np.testing.assert_allclose(cut.token_probs, whole.token_probs, rtol=0, atol=PROB_BOUND)
+
+
 def test_the_comparison_can_fail(shipped, starts):
     # Another seed samples other tokens: the equality above is not vacuous.
     model, manual = shipped

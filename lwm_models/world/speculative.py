@@ -40,12 +40,14 @@ from .base import WorldModel
 from .constraints import StepRules
 from .flat_decoder import FlatDecoder, RowCache, _Step, per_weights, scripted
 from .imagine import DecoderBatch
+from .lanes import lanes
 from .tokens import BLOCK, COL_OFFSET, FIRST_REWARD_LABEL, OBS_TOKENS, OBS_VOCAB, ROW_OFFSET
 
 STEP_TOKENS = OBS_TOKENS + 2  # tokens sampled per step: 12 observation tokens, reward, done
 FED = BLOCK  # stream entries fed per step: the pending done, the action, and tokens 0..12
 _DELTAS = torch.tensor(ACTION_DELTAS + ((0, 0),), dtype=torch.long)  # the dummy action stays
 _AVATAR = 3 * 3  # the avatar channel's first token (id, row, column) in an observation
+MIN_GROUP = 4  # rows per group at least when a step's rows are cut into groups (`_groups`)
 
 
 def draft_block(
@@ -123,8 +125,13 @@ class FlatDecoderBatch(DecoderBatch):
         known = torch.zeros(b, dtype=torch.long)  # tokens of the block sampled so far
         state = (stream, fed, known, block, probs, self.cache.lengths, uniforms, self.temperature)
         conditioning = (self.cond.id_table, self.cache.k, self.cache.v)
-        if rules is None:  # the whole step in one scripted call
-            self.calls += self.speculator.run(*state, *conditioning, self.lookahead)
+        if rules is None:  # the whole step in scripted calls: one per group of rows (lanes.py)
+            groups = _groups(b)
+            if len(groups) == 1:
+                self.calls += self.speculator.run(everyone, *state, *conditioning, self.lookahead)
+            else:
+                work = [(self.speculator.run, (rows, *state, *conditioning, self.lookahead)) for rows in groups]
+                self.calls += max(lanes().run(work))
         else:  # the rules are Python: what they allow is computed before each call
             rows, calls = everyone, 0
             while len(rows):
@@ -160,6 +167,16 @@ class FlatDecoderBatch(DecoderBatch):
             out[:, k, : mask.shape[1]] = mask
         out |= ~self.constrained[rows][:, None, None]
         return out
+
+
+def _groups(rows: int) -> list[torch.Tensor]:
+    """The groups of consecutive rows a step runs at once, one per lane, each of MIN_GROUP rows at
+    least (fewer rows are one group: a call over 2 rows costs about what a call over 4 does)."""
+    available = lanes()
+    count = 1 if available is None else min(available.count, rows // MIN_GROUP)
+    if count <= 1:
+        return [torch.arange(rows)]
+    return [torch.arange(rows * i // count, rows * (i + 1) // count) for i in range(count)]
 
 
 def _lookahead(rows: int, call: int) -> int:
@@ -224,6 +241,7 @@ class _Speculator(nn.Module):
     @torch.jit.export
     def run(
         self,
+        rows: torch.Tensor,
         stream: torch.Tensor,
         fed: torch.Tensor,
         known: torch.Tensor,
@@ -237,9 +255,10 @@ class _Speculator(nn.Module):
         v_cache: torch.Tensor,
         lookahead: int,
     ) -> int:
-        """A whole unconstrained step: calls until every row has sampled its block; returns how
-        many calls it took. `lookahead` < 0: by the rows in each call and its number (`_lookahead`)."""
-        rows = torch.arange(stream.shape[0])
+        """A whole unconstrained step of the rows `rows`: calls until each has sampled its block;
+        returns how many calls it took. `lookahead` < 0: by the rows in each call and its number
+        (`_lookahead`). Groups of rows may run at once on other threads (lanes.py): each writes only
+        its own rows of the step's state and the cache."""
         calls = 0
         while rows.shape[0] > 0:
             ahead = _lookahead(rows.shape[0], calls) if lookahead < 0 else lookahead
