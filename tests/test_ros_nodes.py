@@ -17,6 +17,7 @@ import pytest
 from game_fixtures import MANUAL, OBS
 
 from lwm_models.ledger import Ledger
+from lwm_models.world.shipped import SHIPPED, SYSTEM_WORLD_MODEL, WORLD_MODELS
 
 pytest.importorskip("rclpy")
 pytest.importorskip("lwm_interfaces")
@@ -385,10 +386,11 @@ def test_the_planner_process_reads_no_world_model_weights(system):
         f = audit / f"{node_pid(module, domain)}.txt"
         return f.read_text() if f.is_file() else ""
 
-    assert "checkpoints/emma-lwm-reader/" in opened("lwm_nodes.world_model_node")  # the audit sees the world model
+    served = SHIPPED[SYSTEM_WORLD_MODEL].name
+    assert f"checkpoints/{served}/" in opened("lwm_nodes.world_model_node")  # the audit sees the world model
     planner = opened("lwm_nodes.planner_node")
     assert "checkpoints/policy-bc/" in planner  # it does load its policy
-    assert not any(f"checkpoints/{m}/" in planner for m in ("emma-lwm-reader", "emma-lwm", "observational", "oracle"))
+    assert not any(f"checkpoints/{m.directory}/" in planner for m in WORLD_MODELS)
 
 
 def test_a_killed_node_is_restarted(system):

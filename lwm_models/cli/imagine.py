@@ -36,7 +36,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--checkpoint",
         type=checkpoint_dir,
         default=None,
-        help="checkpoint directory (default: the shipped EMMA-LWM with its reader tuned, emma-lwm-reader)",
+        help="checkpoint directory (default: the shipped EMMA-LWM, reader tuned and hedged: emma-lwm-hedged)",
     )
     p.add_argument("--split", choices=SPLITS, default="newall-test", metavar="SPLIT", help="split of the game")
     p.add_argument("--index", type=nonnegative_int, default=0, help="game index in the split")

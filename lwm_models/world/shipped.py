@@ -45,11 +45,12 @@ WORLD_MODELS = (
 POLICY = ShippedModel("policy-bc", "policy-bc", "policy", "warm-start policy")
 """The agent's warm-start policy (behaviour cloning on the training games)."""
 
-SYSTEM_WORLD_MODEL = "emma-reader"
+SYSTEM_WORLD_MODEL = "emma-hedged"
 """The world model the system serves unless told otherwise (the world-model server, `lwm imagine`):
-EMMA-LWM with its reader tuned for other words than the dataset's. Its decoder is EMMA-LWM's, bit
-for bit, so it imagines what EMMA-LWM imagines from what it reads (docs/language.md); the paper's
-tables are EMMA-LWM's."""
+EMMA-LWM with its reader tuned for other words than the dataset's, reading with hedges: where the
+words of a description and the model's own reading disagree, it imagines every possibility the
+words leave open, and says which field was unclear (docs/language.md, "Reading with hedges"). Its
+decoder is EMMA-LWM's, bit for bit; the paper's tables are EMMA-LWM's."""
 
 SHIPPED = {m.key: m.path for m in WORLD_MODELS}
 SHIPPED_POLICY = POLICY.path

@@ -378,7 +378,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--checkpoint",
         default=None,
-        help="the world model the world-model server serves (default: EMMA-LWM, reader tuned)",
+        help="the world model the world-model server serves (default: EMMA-LWM, reader tuned, hedged)",
     )
     parser.add_argument(
         "--config",
