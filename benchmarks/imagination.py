@@ -98,7 +98,8 @@ def main() -> None:
     manual = DescriptionPools.generated().draw("newall-test", list(game.triples), np.random.default_rng(0))
     batch = model.read_manual(manual, model.frozen_text_encoder(), list(game.triples))
     flops = trajectory_flops(model.decoder_config)
-    lane_count = lanes().count if lanes() is not None else 1  # threads a speculative step's rows are cut over
+    available = lanes()
+    lane_count = available.count if available is not None else 1  # threads a speculative step's rows are cut over
     rate = sgemm_rate()
     print(
         f"model: {config['kind']} {config['config']['decoder']} ({config['parameters']:,} parameters), "

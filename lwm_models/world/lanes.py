@@ -4,8 +4,9 @@ A speculative step over many rows (world/speculative.py) is a chain of small dec
 torch's intra-op threads split each op of a call: at 16-64 rows of a few tokens each, an op is too
 small to split well, and a process that asked for one thread (the system's nodes do) leaves the
 other core idle. Cutting the rows into groups and stepping each group on a lane, a thread of its
-own with one intra-op thread, was faster at every batch from 16 rows up on this 2-core machine
-(benchmarks/imagination.py; docs/speed.md has the figures). TorchScript releases the GIL while it
+own with one intra-op thread, made a one-thread process 1.4-1.7x faster at 16-32 rows on this
+2-core machine, and a two-thread one neither faster nor slower (benchmarks/imagination.py;
+docs/speed.md has the figures). TorchScript releases the GIL while it
 runs a graph, so Python threads suffice.
 
 A lane runs its work under `torch.inference_mode()`: lanes serve imagination, which never needs

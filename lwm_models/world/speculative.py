@@ -40,7 +40,7 @@ from .base import WorldModel
 from .constraints import StepRules
 from .flat_decoder import FlatDecoder, RowCache, _Step, per_weights, scripted
 from .imagine import DecoderBatch
-from .lanes import lanes
+from .lanes import Lanes, lanes
 from .tokens import BLOCK, COL_OFFSET, FIRST_REWARD_LABEL, OBS_TOKENS, OBS_VOCAB, ROW_OFFSET
 
 STEP_TOKENS = OBS_TOKENS + 2  # tokens sampled per step: 12 observation tokens, reward, done
@@ -126,12 +126,13 @@ class FlatDecoderBatch(DecoderBatch):
         state = (stream, fed, known, block, probs, self.cache.lengths, uniforms, self.temperature)
         conditioning = (self.cond.id_table, self.cache.k, self.cache.v)
         if rules is None:  # the whole step in scripted calls: one per group of rows (lanes.py)
-            groups = _groups(b)
+            available = lanes()
+            groups = _groups(b, available)
             if len(groups) == 1:
                 self.calls += self.speculator.run(everyone, *state, *conditioning, self.lookahead)
             else:
                 work = [(self.speculator.run, (rows, *state, *conditioning, self.lookahead)) for rows in groups]
-                self.calls += max(lanes().run(work))
+                self.calls += max(available.run(work))
         else:  # the rules are Python: what they allow is computed before each call
             rows, calls = everyone, 0
             while len(rows):
@@ -169,10 +170,10 @@ class FlatDecoderBatch(DecoderBatch):
         return out
 
 
-def _groups(rows: int) -> list[torch.Tensor]:
-    """The groups of consecutive rows a step runs at once, one per lane, each of MIN_GROUP rows at
-    least (fewer rows are one group: a call over 2 rows costs about what a call over 4 does)."""
-    available = lanes()
+def _groups(rows: int, available: Lanes | None) -> list[torch.Tensor]:
+    """The groups of consecutive rows a step runs at once, one per lane of `available`, each of
+    MIN_GROUP rows at least (fewer rows are one group: a call over 2 rows costs about what a call
+    over 4 does)."""
     count = 1 if available is None else min(available.count, rows // MIN_GROUP)
     if count <= 1:
         return [torch.arange(rows)]
