@@ -160,3 +160,130 @@ def test_hedge_practice_trains_the_decoder_and_leaves_the_reader_alone(tmp_path,
     code = cli_main.main(["train", "--kind", "emma", "--data", str(tmp_path), "--out", str(tmp_path / "run"),
                           "--hedge-practice", "0.5", "--steps", "1"])  # fmt: skip
     assert code != 0 and "needs a hedged world model" in capsys.readouterr().err
+
+
+# ---------------------------------------------------------------- reading every way the words allow
+
+
+def test_readings_are_the_model_s_own_where_the_words_decide_and_each_possibility_elsewhere(hedged):
+    from lwm_models.world.hedged_reading import OWN_WEIGHT, readings
+
+    model, _ = hedged
+    pk, pv = model.proto_keys, model.proto_values
+    a = ALL_TRIPLES.index(("airplane", "chaser", "enemy"))
+    keys, values = pk[a].expand(1, 3, -1).clone(), pv[a].expand(1, 3, -1).clone()
+    # all decided and the model agrees: one reading; movement open, the model's reading among those
+    # allowed; the model's reading excluded by the words
+    words = ["the plane chases you and it is deadly.", "the plane is deadly.",
+             "the plane chases you and it is the goal."]  # fmt: skip
+    codes = torch.tensor([[words_code(w) for w in words]])
+    r = readings(keys, values, codes, pk, pv, stand_distance=-1.0)
+    assert r.alone.tolist() == [[True, False, False]] and r.own_among.tolist() == [[False, True, False]]
+    # 1 x 3 x 1 combinations, likeliest first: the model's own reading of the second description
+    assert len(r.owner) == 3 and r.owner.tolist() == [0, 0, 0]
+    assert torch.allclose(r.log_prior.exp(), torch.tensor([OWN_WEIGHT, 0.1, 0.1]), atol=1e-6)
+    assert torch.equal(r.keys[:, 0], keys[0, 0].expand(3, -1))  # the first description: always its own
+    assert torch.equal(r.keys[0, 1], keys[0, 1])  # the likeliest reading is the model's own
+    second = {ALL_TRIPLES.index(("airplane", m, "enemy")) for m in ("fleeing", "immovable")}
+    assert {int(hedge_index(pk, r.keys[i, 1])) for i in (1, 2)} == second
+    # the third description is read as the one triple its words allow, in every combination
+    b = ALL_TRIPLES.index(("airplane", "chaser", "goal"))
+    assert all(torch.equal(r.keys[i, 2], pk[b]) for i in range(3))
+    # a reading as near a prototype as the dataset's own text stands alone, whatever the words
+    assert readings(keys, values, codes, pk, pv, model.stand_distance).alone.all()
+
+
+def hedge_index(proto_keys: torch.Tensor, key: torch.Tensor) -> int:
+    return int((proto_keys - key).abs().sum(-1).argmin())
+
+
+def test_a_manual_with_many_open_fields_keeps_its_likeliest_readings(hedged):
+    from lwm_models.world.hedged_reading import MAX_READINGS, readings
+
+    model, _ = hedged
+    far = torch.full((2, 3, model.proto_keys.shape[1]), 100.0)  # near no prototype: no own reading
+    codes = torch.tensor([[words_code("the plane.")] * 3, [words_code("the plane chases you and it is deadly.")] * 3])
+    r = readings(far, far, codes, model.proto_keys, model.proto_values)
+    # 9 x 9 x 9 equally likely combinations for the first manual, kept to the cap; one for the second
+    assert r.owner.tolist() == [0] * MAX_READINGS + [1]
+    assert torch.allclose(r.log_prior[:MAX_READINGS].exp().sum(), torch.tensor(1.0))
+    assert float(r.log_prior[-1]) == 0.0
+
+
+def test_the_mixture_is_bayes_rule_over_the_readings():
+    from lwm_models.world.hedged_reading import mixture_log_probs
+
+    # two readings of one manual, two binary tokens at positions 0 and 1 (kinds "a" and "b")
+    p = torch.tensor([[[0.9, 0.1], [0.5, 0.5]], [[0.2, 0.8], [0.3, 0.7]]])  # [R, P, V]: reading r, token t
+    prior = torch.tensor([0.25, 0.75])
+    log_probs = {"a": p[:, :1].log(), "b": p[:, 1:].log()}
+    targets = {"a": torch.tensor([[0], [0]]), "b": torch.tensor([[1], [1]])}
+    positions = {"a": torch.tensor([0]), "b": torch.tensor([1])}
+    out = mixture_log_probs(log_probs, targets, positions, torch.tensor([0, 0]), prior.log())
+    # the first token: the prior mixture; the second: the posterior after seeing token 0 = 0
+    first = prior[0] * p[0, 0] + prior[1] * p[1, 0]
+    post = prior * torch.tensor([0.9, 0.2])
+    post = post / post.sum()
+    second = post[0] * p[0, 1] + post[1] * p[1, 1]
+    assert torch.allclose(out["a"][0, 0].exp(), first) and torch.allclose(out["b"][0, 0].exp(), second)
+    # one reading: its own predictions
+    one = mixture_log_probs(
+        {k: v[:1] for k, v in log_probs.items()},
+        {k: v[:1] for k, v in targets.items()},
+        positions,
+        torch.tensor([0]),
+        torch.zeros(1),
+    )
+    assert torch.allclose(one["b"], log_probs["b"][:1])
+
+
+def test_trajectories_of_one_manual_imagine_its_readings_in_proportion(hedged):
+    from lwm_models.world.base import Conditioning
+    from lwm_models.world.imagine import condition_rows
+
+    owner = torch.tensor([0, 0, 0])
+    table = torch.arange(3.0).view(3, 1, 1).expand(3, 17, 4)
+    cond = Conditioning(id_table=table, reading_owner=owner, reading_log_prior=torch.tensor([0.8, 0.1, 0.1]).log())
+    picked = condition_rows(cond, 10).id_table[:, 0, 0].tolist()
+    assert sorted(picked) == [0.0] * 8 + [1.0, 2.0]
+    assert condition_rows(cond, 1).id_table[:, 0, 0].tolist() == [0.0]  # alone: the likeliest
+    # one manual per trajectory: each row reads its own manual's readings
+    two = Conditioning(id_table=table[:2], reading_owner=torch.tensor([0, 1]), reading_log_prior=torch.zeros(2))
+    assert condition_rows(two, 2).id_table[:, 0, 0].tolist() == [0.0, 1.0]
+
+    # the shipped model: a manual whose words leave movements open imagines several futures
+    model, _ = hedged
+    manual = ["the plane is deadly.", "the ball has the message.", "the robot is the goal."]
+    cond = model.condition_on(model.read_manual(manual, model.frozen_text_encoder()))
+    assert cond.reading_owner is not None and len(cond.reading_owner) > 1
+    rows = condition_rows(cond, 32).id_table
+    assert len({tuple(t.flatten()[:8].tolist()) for t in rows}) > 1
+    # with the mixture off, the mean prototype as before: one row
+    model.mixture = False
+    try:
+        assert model.condition_on(model.read_manual(manual, model.frozen_text_encoder())).reading_owner is None
+    finally:
+        model.mixture = True
+
+
+def test_reading_each_possibility_predicts_free_form_episodes_better_than_the_mean_prototype(hedged, tmp_path):
+    from lwm_models.data.dataset import generate_dataset
+    from lwm_models.text.pools import DescriptionPools
+    from lwm_models.text.stress import stress_pools
+    from lwm_models.world.train import evaluate_loss
+    from lwm_models.world.training_data import SplitTokens, redraw_manuals
+
+    model, _ = hedged
+    generate_dataset(tmp_path, DescriptionPools.generated(), max_games=12, train_episodes_per_game=2,
+                     splits=("newall-dev",))  # fmt: skip
+    encoder = model.frozen_text_encoder()
+    data = SplitTokens(tmp_path, "newall-dev", encoder, model.route)
+    redraw_manuals(data, stress_pools("casual", "dev"), encoder, 0)
+    data.routed = torch.tensor([model.route(t, encoder) for t in data.texts]).numpy()
+    mixed = evaluate_loss(model, data, limit=24)["total"]
+    model.mixture = False
+    try:
+        mean = evaluate_loss(model, data, limit=24)["total"]
+    finally:
+        model.mixture = True
+    assert mixed < mean - 0.02, (mixed, mean)

@@ -72,9 +72,38 @@ class Conditioning:
     id_table: torch.Tensor | None = None  # [B, 17, H]
     memory: torch.Tensor | None = None  # [B, M, H]
     memory_mask: torch.Tensor | None = None  # [B, M] True at real tokens
+    # Several readings of each manual (a hedged EMMA-LWM's `condition_on`): row r of id_table is a
+    # reading of manual `reading_owner[r]` with prior log-probability `reading_log_prior[r]`, rows of
+    # one manual together and likeliest first. `rows_for` gives each trajectory one of them.
+    reading_owner: torch.Tensor | None = None  # [R]
+    reading_log_prior: torch.Tensor | None = None  # [R]
 
     def index(self, idx: torch.Tensor) -> Conditioning:
         return Conditioning(*(None if t is None else t[idx] for t in (self.id_table, self.memory, self.memory_mask)))
+
+    def rows_for(self, n: int) -> Conditioning:
+        """n rows, one reading each, drawn from the readings' prior without a random stream: n
+        trajectories of one manual spread over its readings in proportion (stratified: trajectory i
+        takes the reading at prior quantile (i + 0.5) / n, so a lone trajectory imagines the likeliest
+        reading); one manual per trajectory takes the quantile 0.5 + 0.618 i (mod 1), a low-discrepancy
+        sequence, so that a batch of episodes samples each one's prior."""
+        if self.reading_owner is None:
+            return self
+        owner = self.reading_owner
+        manuals = int(owner.max()) + 1
+        if manuals not in (1, n):
+            raise ValueError(f"manual batch must be 1 or {n}, got {manuals}")
+        steps = torch.arange(n, dtype=torch.float64)
+        quantiles = (steps + 0.5) / n if manuals == 1 else torch.remainder(0.5 + 0.6180339887498949 * steps, 1.0)
+        first = torch.searchsorted(owner, torch.arange(manuals))
+        picked = []
+        for i in range(n):
+            m = 0 if manuals == 1 else i
+            rows = torch.nonzero(owner == m).flatten()
+            cdf = torch.cumsum(torch.softmax(self.reading_log_prior[rows].double(), 0), 0)
+            k = min(int(torch.searchsorted(cdf, quantiles[i : i + 1].to(cdf.dtype))), len(rows) - 1)
+            picked.append(int(first[m]) + k)
+        return self.index(torch.tensor(picked, dtype=torch.long))
 
     @staticmethod
     def cat(parts: Sequence[Conditioning]) -> Conditioning:
@@ -247,10 +276,16 @@ class WorldModel(nn.Module):
         """Teacher-forced predictions of each kind of token ("obs", "reward", "done"): the logits
         [B, P, V] (float32), the true next tokens [B, P] and which of them are real [B, P] (the first
         block is context only; padding past `lengths` blocks is not)."""
+        return self.predictions_given(tokens, lengths, self.condition(manual))
+
+    def predictions_given(
+        self, tokens: torch.Tensor, lengths: torch.Tensor, cond: Conditioning
+    ) -> dict[str, tuple[torch.Tensor, torch.Tensor, torch.Tensor]]:
+        """`predictions` under a conditioning already computed (one row per sequence)."""
         n = tokens.shape[1]
         if n % BLOCK or n > MAX_LEN:
             raise ValueError(f"sequence length {n} must be a multiple of {BLOCK} and at most {MAX_LEN}")
-        h = self.hidden_states(tokens, self.condition(manual))
+        h = self.hidden_states(tokens, cond)
         layout = _targets_layout(n)
         valid_tokens = lengths.to(tokens.device)[:, None] * BLOCK  # target positions < this are real
         out = {}

@@ -37,6 +37,9 @@ so datasets and the world-model server fill it as they fill GPTHard's routing.
 
 from __future__ import annotations
 
+import itertools
+import math
+from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
@@ -44,10 +47,11 @@ import torch
 
 from ..messenger.constants import ALL_TRIPLES, IDENTITIES, MOVEMENTS, NUM_IDS, ROLES
 from ..text.parser import nearest_value, parse_identity, parse_movement, parse_role
-from .base import Conditioning, WorldModelConfig
+from .base import Conditioning, WorldModel, WorldModelConfig, _targets_layout
 from .emma import EmmaLWM
 from .frozen_text import FrozenTextEncoder
 from .manual import ManualBatch
+from .tokens import BLOCK, SLOT_DONE, SLOT_OBS, SLOT_REWARD
 
 PROTOTYPE_TEXTS = 24  # generated descriptions per triple averaged into its prototype
 STAND_QUANTILE = 0.5  # of the training descriptions' distances to their nearest prototype
@@ -130,6 +134,115 @@ def hedge(
     return torch.where(keep, keys, hedged_k), torch.where(keep, values, hedged_v), stands
 
 
+OWN_WEIGHT = 0.8  # prior of the model's own reading among the readings the words allow
+MAX_READINGS = 27  # readings of one manual at most (the likeliest, by prior)
+MIXTURE_ROWS = 256  # reading rows per decoder pass in teacher-forced evaluation (memory)
+
+
+@dataclass
+class Readings:
+    """The readings of a batch of manuals, one row each: keys and values [R, 3, W], the manual
+    (batch row) each belongs to [R], their prior log-probability [R] (normalised per manual), rows
+    of a manual together and likeliest first. `alone` [B, 3]: the description is read one way only,
+    the model's own reading; `own_among` [B, 3]: the model's own reading is one of several."""
+
+    keys: torch.Tensor
+    values: torch.Tensor
+    owner: torch.Tensor
+    log_prior: torch.Tensor
+    alone: torch.Tensor
+    own_among: torch.Tensor
+
+
+def readings(
+    keys: torch.Tensor,
+    values: torch.Tensor,
+    codes: torch.Tensor,
+    proto_keys: torch.Tensor,
+    proto_values: torch.Tensor,
+    stand_distance: float = 0.0,
+    own_weight: float = OWN_WEIGHT,
+    max_readings: int = MAX_READINGS,
+) -> Readings:
+    """keys, values [B, 3, W] as the model reads them, codes [B, 3] -> every way each manual may be
+    read, with a prior. A description is read one way, the model's own, when the words decide its
+    movement and role and the model's nearest prototype agrees, or when the reading lies within
+    `stand_distance` of a prototype; otherwise each triple the words allow is a reading (its
+    prototype), the model's own reading standing for its nearest prototype with prior `own_weight`
+    where the words allow that one, the rest sharing what is left evenly. A manual's readings are
+    the combinations of its descriptions' (the likeliest `max_readings`)."""
+    distances = prototype_distances(keys, values, proto_keys, proto_values)
+    closest, nearest = distances.min(-1)
+    allowed = candidates(codes)
+    allowed = allowed | ~allowed.any(-1, keepdim=True)  # words that fit no triple leave everything open
+    agree = allowed.gather(-1, nearest[..., None]).squeeze(-1)
+    decided = ((codes // 4) % 4 > 0) & (codes % 4 > 0)
+    alone = (agree & decided) | (closest <= stand_distance)
+    own_among = agree & ~alone
+    ks, vs, owner, log_prior = [], [], [], []
+    for b in range(keys.shape[0]):
+        per_description = []
+        for j in range(keys.shape[1]):
+            own = (keys[b, j], values[b, j])
+            if alone[b, j]:
+                per_description.append([(*own, 1.0)])
+                continue
+            triples = torch.nonzero(allowed[b, j]).flatten().tolist()
+            if own_among[b, j]:
+                rest = [t for t in triples if t != int(nearest[b, j])]
+                options = [(*own, own_weight if rest else 1.0)]
+            else:
+                rest, options = triples, []
+            share = (1.0 - sum(w for _, _, w in options)) / max(1, len(rest))
+            options += [(proto_keys[t], proto_values[t], share) for t in rest]
+            per_description.append(options)
+        combos = sorted(itertools.product(*per_description), key=lambda c: -math.prod(w for _, _, w in c))[
+            :max_readings
+        ]
+        priors = torch.tensor([math.prod(w for _, _, w in c) for c in combos], dtype=torch.float64)
+        log_prior.append(torch.log(priors / priors.sum()).float())
+        ks += [torch.stack([o[0] for o in c]) for c in combos]
+        vs += [torch.stack([o[1] for o in c]) for c in combos]
+        owner += [b] * len(combos)
+    return Readings(torch.stack(ks), torch.stack(vs), torch.tensor(owner), torch.cat(log_prior), alone, own_among)
+
+
+def mixture_log_probs(
+    log_probs: dict[str, torch.Tensor],
+    targets: dict[str, torch.Tensor],
+    positions: dict[str, torch.Tensor],
+    owner: torch.Tensor,
+    log_prior: torch.Tensor,
+) -> dict[str, torch.Tensor]:
+    """The world model's predictions under its readings combined: per kind, log_probs [R, P, V] of
+    each reading row, the true next tokens [R, P] (the same for the rows of one manual) and the
+    positions [P] they sit at -> [B, P, V], each token's probability the mixture of the readings'
+    weighted by their posterior given the true tokens before it (Bayes: prior times the
+    likelihood of the episode so far). A reading that the episode contradicts loses its weight
+    within a few tokens."""
+    names = list(log_probs)
+    pos = torch.cat([positions[k] for k in names])
+    order = torch.argsort(pos)
+    true = torch.cat([log_probs[k].gather(-1, targets[k][..., None]).squeeze(-1) for k in names], 1)[:, order]
+    before = torch.cumsum(true, 1) - true  # log-likelihood of the tokens before each one
+    back = torch.empty_like(order)
+    back[order] = torch.arange(len(order))
+    before = before[:, back]  # in the kinds' own order again
+    manuals = int(owner.max()) + 1
+    out, lo = {}, 0
+    for k in names:
+        p = log_probs[k].shape[1]
+        weight = log_prior[:, None] + before[:, lo : lo + p]  # [R, P]
+        lo += p
+        mixed = []
+        for m in range(manuals):
+            rows = owner == m
+            w = weight[rows] - torch.logsumexp(weight[rows], 0, keepdim=True)
+            mixed.append(torch.logsumexp(w[..., None] + log_probs[k][rows], 0))
+        out[k] = torch.stack(mixed)
+    return out
+
+
 def practice_codes(codes: torch.Tensor, rate: float, open_rate: float = 0.5) -> tuple[torch.Tensor, torch.Tensor]:
     """Training inputs for the decoder: which descriptions [B, 3] to hedge (each with probability
     `rate`), and their words with the movement and the role each left open with probability
@@ -158,6 +271,9 @@ class HedgedEmmaLWM(EmmaLWM):
         # distance of the dataset's training descriptions (`fit_stand_distance`).
         self.register_buffer("stand_distance", torch.zeros(()))
         self.practice_rate = 0.0  # set by practise_hedges: training only
+        # Read a manual every way its words allow and imagine each (`readings`); off: the mean
+        # prototype of what they allow (the rule before, kept to compare).
+        self.mixture = True
 
     def practise_hedges(self, rate: float) -> None:
         """Train the decoder on hedged readings (`lwm train --hedge-practice`): in training mode a
@@ -185,17 +301,74 @@ class HedgedEmmaLWM(EmmaLWM):
             codes, force = practice_codes(codes, self.practice_rate)
         return hedge(keys, values, codes, self.proto_keys, self.proto_values, self.stand_distance, force)
 
+    def _readings(self, manual: ManualBatch) -> Readings:
+        if manual.features is None or manual.mask is None or manual.routed is None:
+            raise ValueError("a hedged EMMA-LWM needs the manual's encoded descriptions and their words")
+        keys, values = self.reader.read(self.text_encoder(manual.features, manual.mask), manual.mask)
+        return readings(keys, values, manual.routed, self.proto_keys, self.proto_values, float(self.stand_distance))
+
+    def _tables(self, r: Readings) -> torch.Tensor:
+        """[R, 17, W]: what each id reads under each reading."""
+        return self.reader.attend(r.keys, r.values, self.obs_embedding(torch.arange(NUM_IDS, device=r.keys.device)))
+
     def condition(self, manual: ManualBatch) -> Conditioning:
-        keys, values, _ = self._hedged(manual)
-        ids = torch.arange(NUM_IDS, device=keys.device)
-        return Conditioning(id_table=self.reader.attend(keys, values, self.obs_embedding(ids)))
+        """One row per manual: in training (and with `mixture` off) the mean-prototype hedge, else
+        the likeliest reading."""
+        if self.training or not self.mixture:
+            keys, values, _ = self._hedged(manual)
+            ids = torch.arange(NUM_IDS, device=keys.device)
+            return Conditioning(id_table=self.reader.attend(keys, values, self.obs_embedding(ids)))
+        r = self._readings(manual)
+        firsts = torch.searchsorted(r.owner, torch.arange(len(manual.routed)))
+        return Conditioning(id_table=self._tables(r)[firsts])
+
+    @torch.inference_mode()
+    def condition_on(self, manual: ManualBatch) -> Conditioning:
+        """Every reading of the manual with its prior: imagination gives each trajectory one
+        (`Conditioning.rows_for`), so that n trajectories imagine each possibility in proportion."""
+        self.eval()
+        if not self.mixture:
+            return self.condition(manual)
+        r = self._readings(manual)
+        return Conditioning(id_table=self._tables(r), reading_owner=r.owner, reading_log_prior=r.log_prior)
+
+    def predictions(
+        self, tokens: torch.Tensor, lengths: torch.Tensor, manual: ManualBatch
+    ) -> dict[str, tuple[torch.Tensor, torch.Tensor, torch.Tensor]]:
+        """Teacher-forced predictions; out of training, of the readings' mixture
+        (`mixture_log_probs`: the log-probabilities stand for the logits)."""
+        if self.training or not self.mixture:
+            return super().predictions(tokens, lengths, manual)
+        r = self._readings(manual)
+        tables = self._tables(r)
+        parts: dict[str, list[torch.Tensor]] = {"obs": [], "reward": [], "done": []}
+        for lo in range(0, len(r.owner), MIXTURE_ROWS):
+            rows = r.owner[lo : lo + MIXTURE_ROWS]
+            own = WorldModel.predictions_given(
+                self, tokens[rows], lengths[rows], Conditioning(id_table=tables[lo : lo + MIXTURE_ROWS])
+            )
+            for k, (logits, _, _) in own.items():
+                parts[k].append(torch.log_softmax(logits, -1))
+        layout = _targets_layout(tokens.shape[1])
+        slots = {"obs": SLOT_OBS, "reward": SLOT_REWARD, "done": SLOT_DONE}
+        positions = {k: torch.as_tensor(layout[slot]) for k, slot in slots.items()}
+        targets = {k: tokens[:, positions[k] + 1] for k in slots}
+        log_probs = {k: torch.cat(v) for k, v in parts.items()}
+        per_row = {k: t[r.owner] for k, t in targets.items()}
+        mixed = mixture_log_probs(log_probs, per_row, positions, r.owner, r.log_prior)
+        valid = lengths.to(tokens.device)[:, None] * BLOCK
+        return {k: (mixed[k], targets[k], (positions[k] + 1)[None, :] < valid) for k in slots}
 
     @torch.no_grad()
     def unsure(self, manual: ManualBatch) -> list[dict]:
         """Per description of a batch-of-one manual: the fields ("identity", "movement", "role") its
         words leave open (`open`), and whether the world model's own reading stood (`guessed`: it
         filled them in itself) or it imagines a mixture of what the words allow."""
-        _, _, stands = self._hedged(manual)
+        if self.mixture:
+            r = self._readings(manual)
+            stands = r.alone | r.own_among
+        else:
+            _, _, stands = self._hedged(manual)
         out = []
         for code, stood in zip(manual.routed[0].tolist(), stands[0].tolist()):
             decided = (code // 16 > 0, (code // 4) % 4 > 0, code % 4 > 0)
@@ -237,4 +410,14 @@ class HedgedEmmaLWM(EmmaLWM):
         return reading(self, features.float(), mask)
 
 
-__all__ = ["HedgedEmmaLWM", "candidates", "hedge", "practice_codes", "prototype_distances", "words_code"]
+__all__ = [
+    "HedgedEmmaLWM",
+    "Readings",
+    "candidates",
+    "hedge",
+    "mixture_log_probs",
+    "practice_codes",
+    "prototype_distances",
+    "readings",
+    "words_code",
+]

@@ -323,7 +323,13 @@ class Trajectories:
 
 
 def condition_rows(cond: Conditioning, n: int) -> Conditioning:
-    """A conditioning on a manual (batch 1, broadcast; or one per trajectory) for n rows."""
+    """A conditioning on a manual (batch 1, broadcast; or one per trajectory) for n rows; of a
+    manual read several ways, one reading per row (`Conditioning.rows_for`)."""
+    if cond.reading_owner is not None:
+        try:
+            return cond.rows_for(n)
+        except ValueError as e:
+            raise ShapeError(str(e)) from None
     given = next((t.shape[0] for t in (cond.id_table, cond.memory) if t is not None), n)
     if given not in (1, n):
         raise ShapeError(f"manual batch must be 1 or {n}, got {given}")
