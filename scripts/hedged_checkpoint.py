@@ -56,6 +56,7 @@ def main() -> int:
         "prototype_texts": PROTOTYPE_TEXTS,
         "stand_quantile": STAND_QUANTILE,
         "stand_distance": round(float(hedged.stand_distance), 4),
+        "rule": "mixture",  # read every way the words allow (hedged_reading.readings)
     }
     save_checkpoint(hedged, args.out, meta, dtype=torch.float16)
     print(f"wrote {args.out}")

@@ -287,3 +287,12 @@ def test_reading_each_possibility_predicts_free_form_episodes_better_than_the_me
     finally:
         model.mixture = True
     assert mixed < mean - 0.02, (mixed, mean)
+
+
+def test_each_shipped_hedged_checkpoint_reads_with_the_rule_it_was_measured_with(hedged):
+    model, config = hedged
+    assert config["hedged_reading"]["rule"] == "mixture" and model.mixture
+    practised, config = load_checkpoint("lwm_models/checkpoints/emma-lwm-practised", kind="emma-hedged")
+    assert config["hedged_reading"]["rule"] == "mean" and not practised.mixture
+    batch = practised.read_manual(["the plane is deadly."] * 3, practised.frozen_text_encoder())
+    assert practised.condition_on(batch).reading_owner is None  # one row: the mean prototype

@@ -144,4 +144,8 @@ def load_checkpoint(directory: str | Path, kind: str | None = None) -> tuple[Wor
     except (KeyError, ValueError) as exc:
         raise CheckpointError(f"{directory}: {exc}") from None
     load_into(model, directory, state)
+    # A hedged EMMA-LWM reads with the rule it was measured with: "mixture" (every reading the words
+    # allow) or "mean" (the mean prototype of them, the rule before; emma-lwm-practised).
+    if "hedged_reading" in config and hasattr(model, "mixture"):
+        model.mixture = config["hedged_reading"].get("rule", "mixture") == "mixture"
     return model.eval(), config

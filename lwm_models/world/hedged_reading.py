@@ -1,15 +1,9 @@
-"""EMMA-LWM reading with hedges: a description the world model may be misreading is read as what
-its words allow, not as the model's guess.
+"""EMMA-LWM reading with hedges: a description the world model may be misreading is read every way
+its words allow, and the world model imagines each.
 
 A world model conditioned on a wrong reading of a description (the plane read as the goal when
-the text says it is deadly) imagines confidently wrong futures; one conditioned on "the plane, some
-role" imagines the roles' mixture and loses little. Measured on NewAll test with the
-reader-tuned model (docs/language.md): each description read as the mean reading of the
-generator's descriptions of its true triple gives a cross-entropy of 0.083, and of its true
-identity and movement with the role left open 0.123, against 0.168 for a model that reads nothing.
-A wrong commitment costs far more than a hedge.
-
-So each description is read twice:
+the text says it is deadly) imagines confidently wrong futures, worse than reading nothing. So each
+description is read twice:
 - by the world model (its description attention's key and value), and
 - by its words: the keyword parser's identity (the frozen encoder's nearest name where no keyword
   names one), movement and role. A field no keyword rule decides stays open, and so does a
@@ -17,19 +11,27 @@ So each description is read twice:
   keyword "moving"). The triples that agree with what the words decide are the candidates.
 
 Each of the 108 triples has a prototype: the mean key and value the model reads from the
-project's generated descriptions of it (`fit_prototypes`, stored with the weights). The model's
-own reading stands when its nearest prototype is a candidate (the words and the model agree), or
-when it lies within `stand_distance` of that prototype: as near as half of the dataset's training
-descriptions are read (`fit_stand_distance`), i.e. text the model reads in its own language.
-Otherwise the reading becomes the mean prototype of the candidates: what the words say, hedged
-over what they leave open. (The rule was chosen among soft and hard variants by cross-entropy on
-the three dev splits with the dataset's descriptions; docs/language.md has the table.)
+project's generated descriptions of it (`fit_prototypes`, stored with the weights).
 
-A decoder trained only on the model's own readings imagines nonsense from a mean prototype over
-the three movements (NewAll-dev: 0.338, worse than reading nothing). `practise_hedges` (`lwm train
---hedge-practice`) fine-tunes the decoder, the reader frozen, with a share of the descriptions read
-as the mean prototype of their words' triples, a field left open at random (`practice_codes`), so
-that it learns to imagine from a hedge (checkpoint `emma-lwm-practised`; docs/language.md).
+`readings` (the rule served): a description is read one way, the model's own, when its words decide
+the movement and the role and the model's nearest prototype agrees, or when the reading lies within
+`stand_distance` of a prototype (as near as half of the dataset's training descriptions are read,
+`fit_stand_distance`: text the model reads in its own language). Otherwise every candidate is a
+reading (its prototype), the model's own reading standing for its nearest prototype with prior
+`OWN_WEIGHT` where the words allow it. A manual's readings are the combinations of its
+descriptions' (the likeliest `MAX_READINGS`), and the world model is their mixture: teacher-forced,
+each token's probability is the readings' weighted by their posterior given the episode so far
+(`mixture_log_probs`), so a reading the episode contradicts (the plane does not move as read) loses
+its weight within a few tokens; in imagination each trajectory takes one reading, in proportion to
+the prior (`Conditioning.rows_for`). Measured on NewAll-dev with the stress set's dev part
+(docs/language.md): a reading wrong in one field costs far more than a mixture that holds the right
+one.
+
+`hedge` is the rule before (`HedgedEmmaLWM.mixture = False`): a reading the words do not agree
+with becomes the mean prototype of the candidates. The decoder imagines nonsense from a mean over
+the three movements (NewAll-dev 0.338, worse than reading nothing); `practise_hedges` (`lwm train
+--hedge-practice`) fine-tunes the decoder, the reader frozen, on such means (`practice_codes`;
+checkpoint `emma-lwm-practised`), and training always uses `hedge`.
 
 The words travel with the manual as `ManualBatch.routed`: one int per description (`words_code`),
 so datasets and the world-model server fill it as they fill GPTHard's routing.
@@ -364,9 +366,8 @@ class HedgedEmmaLWM(EmmaLWM):
         """Per description of a batch-of-one manual: the fields ("identity", "movement", "role") its
         words leave open (`open`), and whether the world model's own reading stood (`guessed`: it
         filled them in itself) or it imagines a mixture of what the words allow."""
-        if self.mixture:
-            r = self._readings(manual)
-            stands = r.alone | r.own_among
+        if self.mixture:  # one reading, the model's own; else it imagines each (its own likeliest)
+            stands = self._readings(manual).alone
         else:
             _, _, stands = self._hedged(manual)
         out = []
