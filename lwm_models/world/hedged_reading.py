@@ -109,6 +109,17 @@ def prototype_distances(
     return torch.cdist(mine.reshape(-1, mine.shape[-1]), protos).view(*mine.shape[:-1], len(protos))
 
 
+def _checked(
+    keys: torch.Tensor, values: torch.Tensor, codes: torch.Tensor, proto_keys: torch.Tensor, proto_values: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Each reading checked against its words: its distance to its nearest prototype and which that
+    is [B, 3], the triples the words allow [B, 3, 108], and whether they allow the nearest [B, 3]."""
+    closest, nearest = prototype_distances(keys, values, proto_keys, proto_values).min(-1)
+    allowed = candidates(codes)
+    allowed = allowed | ~allowed.any(-1, keepdim=True)  # words that fit no triple leave everything open
+    return closest, nearest, allowed, allowed.gather(-1, nearest[..., None]).squeeze(-1)
+
+
 def hedge(
     keys: torch.Tensor,
     values: torch.Tensor,
@@ -122,12 +133,8 @@ def hedge(
     condition on, and [B, 3] bool: True where the model's reading stood (its nearest prototype
     agrees with the words, or lies within `stand_distance` of it). `force` [B, 3] bool: hedge
     these whatever the reading (practice, `practice_codes`)."""
-    distances = prototype_distances(keys, values, proto_keys, proto_values)
-    closest, nearest = distances.min(-1)
-    allowed = candidates(codes)
-    none_allowed = ~allowed.any(-1, keepdim=True)
-    allowed = allowed | none_allowed  # words that fit no triple leave everything open
-    stands = allowed.gather(-1, nearest[..., None]).squeeze(-1) | (closest <= stand_distance)
+    closest, nearest, allowed, agree = _checked(keys, values, codes, proto_keys, proto_values)
+    stands = agree | (closest <= stand_distance)
     if force is not None:
         stands = stands & ~force
     weights = allowed.float() / allowed.sum(-1, keepdim=True)
@@ -173,11 +180,7 @@ def readings(
     prototype), the model's own reading standing for its nearest prototype with prior `own_weight`
     where the words allow that one, the rest sharing what is left evenly. A manual's readings are
     the combinations of its descriptions' (the likeliest `max_readings`)."""
-    distances = prototype_distances(keys, values, proto_keys, proto_values)
-    closest, nearest = distances.min(-1)
-    allowed = candidates(codes)
-    allowed = allowed | ~allowed.any(-1, keepdim=True)  # words that fit no triple leave everything open
-    agree = allowed.gather(-1, nearest[..., None]).squeeze(-1)
+    closest, nearest, allowed, agree = _checked(keys, values, codes, proto_keys, proto_values)
     decided = ((codes // 4) % 4 > 0) & (codes % 4 > 0)
     alone = (agree & decided) | (closest <= stand_distance)
     own_among = agree & ~alone
