@@ -54,6 +54,7 @@ def test_a_world_model_recipe_parses_to_what_its_checkpoint_was_trained_with(nam
             **_recipe(name)["options"],
             "prototype_texts": PROTOTYPE_TEXTS,
             "stand_quantile": STAND_QUANTILE,
+            "rule": "mixture",  # the script's rule: every reading the words allow
         }
         return
     # A checkpoint records the arguments of the command that made it: `lwm train`'s or `lwm tune-reader`'s.
