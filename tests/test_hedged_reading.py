@@ -296,3 +296,18 @@ def test_each_shipped_hedged_checkpoint_reads_with_the_rule_it_was_measured_with
     assert config["hedged_reading"]["rule"] == "mean" and not practised.mixture
     batch = practised.read_manual(["the plane is deadly."] * 3, practised.frozen_text_encoder())
     assert practised.condition_on(batch).reading_owner is None  # one row: the mean prototype
+
+
+def test_the_rules_benchmark_refuses_what_it_cannot_compare(capsys):
+    import importlib.util
+    from pathlib import Path
+
+    spec = importlib.util.spec_from_file_location("hedged_rules", Path("benchmarks/hedged_rules.py"))
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    assert bench.main(["--data", "data/none", "--split", "newall-test"]) == 2
+    assert "chosen on dev splits" in capsys.readouterr().err
+    assert bench.main(["--data", "data/none", "--rules", "mixture:2"]) == 2
+    assert "must be in (0, 1]" in capsys.readouterr().err
+    assert bench.main(["--data", "data/none", "--rules", "median"]) == 2
+    assert "unknown rule 'median'" in capsys.readouterr().err

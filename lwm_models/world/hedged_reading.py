@@ -279,6 +279,7 @@ class HedgedEmmaLWM(EmmaLWM):
         # Read a manual every way its words allow and imagine each (`readings`); off: the mean
         # prototype of what they allow (the rule before, kept to compare).
         self.mixture = True
+        self.own_weight = OWN_WEIGHT  # the prior of the model's own reading among several
 
     def practise_hedges(self, rate: float) -> None:
         """Train the decoder on hedged readings (`lwm train --hedge-practice`): in training mode a
@@ -310,7 +311,9 @@ class HedgedEmmaLWM(EmmaLWM):
         if manual.features is None or manual.mask is None or manual.routed is None:
             raise ValueError("a hedged EMMA-LWM needs the manual's encoded descriptions and their words")
         keys, values = self.reader.read(self.text_encoder(manual.features, manual.mask), manual.mask)
-        return readings(keys, values, manual.routed, self.proto_keys, self.proto_values, float(self.stand_distance))
+        return readings(
+            keys, values, manual.routed, self.proto_keys, self.proto_values, float(self.stand_distance), self.own_weight
+        )
 
     def _tables(self, r: Readings) -> torch.Tensor:
         """[R, 17, W]: what each id reads under each reading."""
