@@ -6,11 +6,12 @@ dataset's descriptions and with each style of the stress set's dev part (manuals
 same triples), and Table 2's imagined reward / termination precision (raw sampling) with the
 dataset's text. Rules: "mean" (a description the words do not agree with is read as the mean
 prototype of what they allow) and "mixture:W" (every reading the words allow, the model's own with
-prior W; `hedged_reading.readings`). Observational, which reads no text, is the line to beat.
+prior W and the model's entity, where the words name another, with prior Q;
+`hedged_reading.readings`). Observational, which reads no text, is the line to beat.
 Every figure comes from this one run, so the rules are compared on the same episodes and code.
 
     flock /tmp/lwm-heavy.lock .venv/bin/python benchmarks/hedged_rules.py --data data/human \\
-        --rules mean mixture:0.5 mixture:0.8 --episodes 100 --imagination-episodes 200
+        --rules mean mixture:0.8:0 mixture:0.8:0.15 --episodes 100 --imagination-episodes 200
 """
 
 from __future__ import annotations
@@ -38,20 +39,22 @@ CHECKPOINTS = ROOT / "lwm_models" / "checkpoints"
 
 
 def set_rule(model, rule: str) -> None:
-    """Read with `rule` ("mean" or "mixture:W")."""
-    name, _, weight = rule.partition(":")
-    if name == "mean" and not weight:
+    """Read with `rule`: "mean", or "mixture:W:Q" (W the prior of the model's own reading, default
+    0.8; Q that of its entity where the words name another, default 0.15)."""
+    name, *numbers = rule.split(":")
+    if name == "mean" and not numbers:
         model.mixture = False
         return
-    if name != "mixture":
-        raise LwmError(f"unknown rule {rule!r}: give mean or mixture:W (W the own reading's prior, 0-1)")
+    if name != "mixture" or len(numbers) > 2:
+        raise LwmError(f"unknown rule {rule!r}: give mean or mixture:W[:Q] (priors, 0-1)")
     try:
-        model.own_weight = float(weight or 0.8)
+        weights = [float(x) for x in numbers]
     except ValueError:
-        raise LwmError(f"mixture:W needs a number, got {rule!r}") from None
-    if not 0.0 < model.own_weight <= 1.0:
-        raise LwmError(f"the own reading's prior must be in (0, 1], got {model.own_weight}")
-    model.mixture = True
+        raise LwmError(f"mixture:W:Q needs numbers, got {rule!r}") from None
+    own, other = (weights + [0.8, 0.15][len(weights) :])[:2]
+    if not (0.0 < own <= 1.0 and 0.0 <= other < 1.0):
+        raise LwmError(f"the priors must be in (0, 1] and [0, 1), got {own} and {other}")
+    model.mixture, model.own_weight, model.other_identity = True, own, other
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -59,7 +62,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--data", type=Path, required=True, help="dataset directory (lwm data generate)")
     parser.add_argument("--checkpoint", type=Path, default=CHECKPOINTS / "emma-lwm-hedged", help="a hedged EMMA-LWM")
     parser.add_argument("--split", default="newall-dev", help="a dev split")
-    parser.add_argument("--rules", nargs="+", default=["mean", "mixture:0.5", "mixture:0.8"])
+    parser.add_argument("--rules", nargs="+", default=["mean", "mixture:0.8:0", "mixture:0.8:0.15"])
     parser.add_argument("--episodes", type=int, default=100, help="episodes of the cross-entropy (evenly spaced)")
     parser.add_argument("--imagination-episodes", type=int, default=200, help="0: no imagination")
     parser.add_argument("--seed", type=int, default=0, help="manual re-drawing and imagination seed")

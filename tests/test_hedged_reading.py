@@ -193,6 +193,23 @@ def test_readings_are_the_model_s_own_where_the_words_decide_and_each_possibilit
     assert readings(keys, values, codes, pk, pv, model.stand_distance).alone.all()
 
 
+def test_where_the_words_name_another_entity_the_model_s_entity_stays_possible(hedged):
+    from lwm_models.world.hedged_reading import OTHER_IDENTITY, readings
+
+    model, _ = hedged
+    pk, pv = model.proto_keys, model.proto_values
+    ball = ALL_TRIPLES.index(("ball", "chaser", "enemy"))
+    plane = ALL_TRIPLES.index(("airplane", "chaser", "enemy"))
+    keys, values = pk[ball].expand(1, 3, -1).clone(), pv[ball].expand(1, 3, -1).clone()  # read as the ball
+    codes = torch.tensor([[words_code("the plane chases you and it is deadly.")] * 3])  # the words: the plane
+    r = readings(keys[:, :1], values[:, :1], codes[:, :1], pk, pv, stand_distance=-1.0)
+    assert len(r.owner) == 2 and not r.alone.any()
+    assert torch.equal(r.keys[0, 0], pk[plane]) and torch.equal(r.keys[1, 0], keys[0, 0])
+    assert torch.allclose(r.log_prior.exp(), torch.tensor([1 - OTHER_IDENTITY, OTHER_IDENTITY]))
+    # without it, the words' entity alone
+    assert len(readings(keys[:, :1], values[:, :1], codes[:, :1], pk, pv, -1.0, other_identity=0.0).owner) == 1
+
+
 def hedge_index(proto_keys: torch.Tensor, key: torch.Tensor) -> int:
     return int((proto_keys - key).abs().sum(-1).argmin())
 
@@ -203,7 +220,7 @@ def test_a_manual_with_many_open_fields_keeps_its_likeliest_readings(hedged):
     model, _ = hedged
     far = torch.full((2, 3, model.proto_keys.shape[1]), 100.0)  # near no prototype: no own reading
     codes = torch.tensor([[words_code("the plane.")] * 3, [words_code("the plane chases you and it is deadly.")] * 3])
-    r = readings(far, far, codes, model.proto_keys, model.proto_values)
+    r = readings(far, far, codes, model.proto_keys, model.proto_values, other_identity=0.0)
     # 9 x 9 x 9 equally likely combinations for the first manual, kept to the cap; one for the second
     assert r.owner.tolist() == [0] * MAX_READINGS + [1]
     assert torch.allclose(r.log_prior[:MAX_READINGS].exp().sum(), torch.tensor(1.0))
@@ -309,5 +326,7 @@ def test_the_rules_benchmark_refuses_what_it_cannot_compare(capsys):
     assert "chosen on dev splits" in capsys.readouterr().err
     assert bench.main(["--data", "data/none", "--rules", "mixture:2"]) == 2
     assert "must be in (0, 1]" in capsys.readouterr().err
+    assert bench.main(["--data", "data/none", "--rules", "mixture:0.8:1"]) == 2
+    assert "[0, 1)" in capsys.readouterr().err
     assert bench.main(["--data", "data/none", "--rules", "median"]) == 2
     assert "unknown rule 'median'" in capsys.readouterr().err

@@ -144,6 +144,7 @@ def hedge(
 
 
 OWN_WEIGHT = 0.8  # prior of the model's own reading among the readings the words allow
+OTHER_IDENTITY = 0.15  # prior of the model's identity where the words name another
 MAX_READINGS = 27  # readings of one manual at most (the likeliest, by prior)
 MIXTURE_ROWS = 256  # reading rows per decoder pass in teacher-forced evaluation (memory)
 
@@ -172,18 +173,25 @@ def readings(
     stand_distance: float = 0.0,
     own_weight: float = OWN_WEIGHT,
     max_readings: int = MAX_READINGS,
+    other_identity: float = OTHER_IDENTITY,
 ) -> Readings:
     """keys, values [B, 3, W] as the model reads them, codes [B, 3] -> every way each manual may be
     read, with a prior. A description is read one way, the model's own, when the words decide its
     movement and role and the model's nearest prototype agrees, or when the reading lies within
     `stand_distance` of a prototype; otherwise each triple the words allow is a reading (its
     prototype), the model's own reading standing for its nearest prototype with prior `own_weight`
-    where the words allow that one, the rest sharing what is left evenly. A manual's readings are
-    the combinations of its descriptions' (the likeliest `max_readings`)."""
+    where the words allow that one, the rest sharing what is left evenly. Where the words name
+    another entity than the model's nearest prototype does, the readings the words allow with the
+    model's entity in place of theirs join with prior `other_identity` (the rest scaled down), so
+    that a misspelt or unusual name does not commit the reading to the words' guess. A manual's
+    readings are the combinations of its descriptions' (the likeliest `max_readings`)."""
     closest, nearest, allowed, agree = _checked(keys, values, codes, proto_keys, proto_values)
     decided = ((codes // 4) % 4 > 0) & (codes % 4 > 0)
     alone = (agree & decided) | (closest <= stand_distance)
     own_among = agree & ~alone
+    said, read = codes // 16, _TRIPLE_FIELDS.to(codes.device)[nearest, 0]  # identity ids [B, 3]
+    other = (said > 0) & (said != read) & ~alone & (other_identity > 0)
+    other_allowed = candidates(codes + (read - said) * 16)  # the words, the model's entity
     ks, vs, owner, log_prior = [], [], [], []
     for b in range(keys.shape[0]):
         per_description = []
@@ -192,15 +200,23 @@ def readings(
             if alone[b, j]:
                 per_description.append([(*own, 1.0)])
                 continue
-            triples = torch.nonzero(allowed[b, j]).flatten().tolist()
-            if own_among[b, j]:
-                rest = [t for t in triples if t != int(nearest[b, j])]
-                options = [(*own, own_weight if rest else 1.0)]
-            else:
-                rest, options = triples, []
-            share = (1.0 - sum(w for _, _, w in options)) / max(1, len(rest))
-            options += [(proto_keys[t], proto_values[t], share) for t in rest]
-            per_description.append(options)
+
+            def options(allow: torch.Tensor, with_own: bool, b: int = b, j: int = j, own: tuple = own) -> list:
+                triples = torch.nonzero(allow).flatten().tolist()
+                if with_own:
+                    rest = [t for t in triples if t != int(nearest[b, j])]
+                    out = [(*own, own_weight if rest else 1.0)]
+                else:
+                    rest, out = triples, []
+                share = (1.0 - sum(w for _, _, w in out)) / max(1, len(rest))
+                return out + [(proto_keys[t], proto_values[t], share) for t in rest]
+
+            these = options(allowed[b, j], bool(own_among[b, j]))
+            if other[b, j]:
+                theirs = options(other_allowed[b, j], bool(other_allowed[b, j, nearest[b, j]]))
+                these = [(k, v, w * (1 - other_identity)) for k, v, w in these]
+                these += [(k, v, w * other_identity) for k, v, w in theirs]
+            per_description.append(these)
         combos = sorted(itertools.product(*per_description), key=lambda c: -math.prod(w for _, _, w in c))[
             :max_readings
         ]
@@ -280,6 +296,7 @@ class HedgedEmmaLWM(EmmaLWM):
         # prototype of what they allow (the rule before, kept to compare).
         self.mixture = True
         self.own_weight = OWN_WEIGHT  # the prior of the model's own reading among several
+        self.other_identity = OTHER_IDENTITY  # the prior of its entity where the words name another
 
     def practise_hedges(self, rate: float) -> None:
         """Train the decoder on hedged readings (`lwm train --hedge-practice`): in training mode a
@@ -312,7 +329,14 @@ class HedgedEmmaLWM(EmmaLWM):
             raise ValueError("a hedged EMMA-LWM needs the manual's encoded descriptions and their words")
         keys, values = self.reader.read(self.text_encoder(manual.features, manual.mask), manual.mask)
         return readings(
-            keys, values, manual.routed, self.proto_keys, self.proto_values, float(self.stand_distance), self.own_weight
+            keys,
+            values,
+            manual.routed,
+            self.proto_keys,
+            self.proto_values,
+            float(self.stand_distance),
+            self.own_weight,
+            other_identity=self.other_identity,
         )
 
     def _tables(self, r: Readings) -> torch.Tensor:
