@@ -18,7 +18,8 @@ the movement and the role and the model's nearest prototype agrees, or when the 
 `stand_distance` of a prototype (as near as half of the dataset's training descriptions are read,
 `fit_stand_distance`: text the model reads in its own language). Otherwise every candidate is a
 reading (its prototype), the model's own reading standing for its nearest prototype with prior
-`OWN_WEIGHT` where the words allow it. A manual's readings are the combinations of its
+`OWN_WEIGHT` where the words allow it; where the words name another entity than the model reads,
+the model's entity stays a reading too (prior `OTHER_IDENTITY`). A manual's readings are the combinations of its
 descriptions' (the likeliest `MAX_READINGS`), and the world model is their mixture: teacher-forced,
 each token's probability is the readings' weighted by their posterior given the episode so far
 (`mixture_log_probs`), so a reading the episode contradicts (the plane does not move as read) loses
