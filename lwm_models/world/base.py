@@ -95,13 +95,12 @@ class Conditioning:
             raise ValueError(f"manual batch must be 1 or {n}, got {manuals}")
         steps = torch.arange(n, dtype=torch.float64)
         quantiles = (steps + 0.5) / n if manuals == 1 else torch.remainder(0.5 + 0.6180339887498949 * steps, 1.0)
-        first = torch.searchsorted(owner, torch.arange(manuals))
+        first = torch.searchsorted(owner, torch.arange(manuals))  # a manual's rows are together
+        cdfs = [torch.cumsum(torch.softmax(self.reading_log_prior[owner == m].double(), 0), 0) for m in range(manuals)]
         picked = []
         for i in range(n):
             m = 0 if manuals == 1 else i
-            rows = torch.nonzero(owner == m).flatten()
-            cdf = torch.cumsum(torch.softmax(self.reading_log_prior[rows].double(), 0), 0)
-            k = min(int(torch.searchsorted(cdf, quantiles[i : i + 1].to(cdf.dtype))), len(rows) - 1)
+            k = min(int(torch.searchsorted(cdfs[m], quantiles[i : i + 1])), len(cdfs[m]) - 1)
             picked.append(int(first[m]) + k)
         return self.index(torch.tensor(picked, dtype=torch.long))
 

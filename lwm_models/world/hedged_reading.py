@@ -40,8 +40,6 @@ so datasets and the world-model server fill it as they fill GPTHard's routing.
 
 from __future__ import annotations
 
-import itertools
-import math
 from dataclasses import dataclass
 from functools import lru_cache
 
@@ -165,6 +163,41 @@ class Readings:
     own_among: torch.Tensor
 
 
+def _options(
+    allow: torch.Tensor,
+    own: tuple[torch.Tensor, torch.Tensor],
+    nearest: int,
+    with_own: bool,
+    own_weight: float,
+    proto_keys: torch.Tensor,
+    proto_values: torch.Tensor,
+) -> list[tuple[torch.Tensor, torch.Tensor, float]]:
+    """One description's readings (key, value, prior) among the triples `allow` [108]: with
+    `with_own`, the model's own reading in place of its `nearest` prototype at `own_weight`, the
+    rest of the triples sharing what is left evenly; likeliest first."""
+    triples = torch.nonzero(allow).flatten().tolist()
+    if with_own:
+        rest = [t for t in triples if t != nearest]
+        out = [(*own, own_weight if rest else 1.0)]
+    else:
+        rest, out = triples, []
+    share = (1.0 - sum(w for _, _, w in out)) / max(1, len(rest))
+    return out + [(proto_keys[t], proto_values[t], share) for t in rest]
+
+
+def _likeliest(per_description: list[list[tuple]], k: int) -> list[tuple[tuple[int, ...], float]]:
+    """The k likeliest combinations of one option per description, as (option indices, prior),
+    likeliest first and ties in the order of the indices. Built one description at a time, keeping
+    the k likeliest partial combinations: exact (a combination among the k likeliest extends a
+    partial one among the k likeliest), and it never lists the whole product (108 options each for
+    three descriptions whose words name no entity would be 1.3 million)."""
+    best: list[tuple[tuple[int, ...], float]] = [((), 1.0)]
+    for options in per_description:
+        grown = [(picks + (i,), prior * o[2]) for picks, prior in best for i, o in enumerate(options)]
+        best = sorted(grown, key=lambda c: (-c[1], c[0]))[:k]
+    return best
+
+
 def readings(
     keys: torch.Tensor,
     values: torch.Tensor,
@@ -201,30 +234,20 @@ def readings(
             if alone[b, j]:
                 per_description.append([(*own, 1.0)])
                 continue
-
-            def options(allow: torch.Tensor, with_own: bool, b: int = b, j: int = j, own: tuple = own) -> list:
-                triples = torch.nonzero(allow).flatten().tolist()
-                if with_own:
-                    rest = [t for t in triples if t != int(nearest[b, j])]
-                    out = [(*own, own_weight if rest else 1.0)]
-                else:
-                    rest, out = triples, []
-                share = (1.0 - sum(w for _, _, w in out)) / max(1, len(rest))
-                return out + [(proto_keys[t], proto_values[t], share) for t in rest]
-
-            these = options(allowed[b, j], bool(own_among[b, j]))
+            near = int(nearest[b, j])
+            protos = (own_weight, proto_keys, proto_values)
+            these = _options(allowed[b, j], own, near, bool(own_among[b, j]), *protos)
             if other[b, j]:
-                theirs = options(other_allowed[b, j], bool(other_allowed[b, j, nearest[b, j]]))
+                theirs = _options(other_allowed[b, j], own, near, bool(other_allowed[b, j, near]), *protos)
                 these = [(k, v, w * (1 - other_identity)) for k, v, w in these]
                 these += [(k, v, w * other_identity) for k, v, w in theirs]
             per_description.append(these)
-        combos = sorted(itertools.product(*per_description), key=lambda c: -math.prod(w for _, _, w in c))[
-            :max_readings
-        ]
-        priors = torch.tensor([math.prod(w for _, _, w in c) for c in combos], dtype=torch.float64)
+        combos = _likeliest(per_description, max_readings)
+        priors = torch.tensor([prior for _, prior in combos], dtype=torch.float64)
         log_prior.append(torch.log(priors / priors.sum()).float())
-        ks += [torch.stack([o[0] for o in c]) for c in combos]
-        vs += [torch.stack([o[1] for o in c]) for c in combos]
+        for picks, _ in combos:
+            ks.append(torch.stack([per_description[j][i][0] for j, i in enumerate(picks)]))
+            vs.append(torch.stack([per_description[j][i][1] for j, i in enumerate(picks)]))
         owner += [b] * len(combos)
     return Readings(torch.stack(ks), torch.stack(vs), torch.tensor(owner), torch.cat(log_prior), alone, own_among)
 
