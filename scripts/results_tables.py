@@ -42,8 +42,8 @@ PAPER_IMAGINATION = {  # delta_dist, reward precision, termination precision
 sys.path.insert(0, str(ROOT))
 from lwm_models.world.shipped import WORLD_MODELS  # noqa: E402
 
-# The paper's figures by the kind they belong to: a hedged EMMA-LWM is EMMA-LWM read differently.
-PAPER_KIND = {"emma-hedged": "emma"}
+# The paper's figures by the kind they belong to: a hedged model is the same model read differently.
+PAPER_KIND = {"emma-hedged": "emma", "gpthard-hedged": "gpthard"}
 SHIPPED = tuple((m.key, PAPER_KIND.get(m.kind, m.kind), m.title, f"table1-2/{m.directory}.json") for m in WORLD_MODELS)
 TABLE3_MODELS = (("observational", "Observational"), ("emma", "EMMA-LWM"), ("oracle", "OracleParse"))
 TABLE3_SETTINGS = (("online_il", "Online IL"), ("filtered_bc", "Filtered BC"))
@@ -447,6 +447,7 @@ LANGUAGE_MODELS = (
     ("emma-lwm-hedged", "EMMA-LWM, reader tuned, hedged"),
     ("emma-lwm-practised", "EMMA-LWM, hedged, practised"),
     ("gpthard", "GPTHard"),
+    ("gpthard-hedged", "GPTHard, hedged"),
     ("observational", "Observational (reads no text)"),
 )
 

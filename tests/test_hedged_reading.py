@@ -330,3 +330,8 @@ def test_the_rules_benchmark_refuses_what_it_cannot_compare(capsys):
     assert "[0, 1)" in capsys.readouterr().err
     assert bench.main(["--data", "data/none", "--rules", "median"]) == 2
     assert "unknown rule 'median'" in capsys.readouterr().err
+    gpthard = "lwm_models/checkpoints/gpthard"
+    assert bench.main(["--data", "data/none", "--checkpoint", gpthard + "-hedged", "--rules", "mean"]) == 2
+    assert "no mean-prototype rule" in capsys.readouterr().err
+    assert bench.main(["--data", "data/none", "--checkpoint", gpthard]) == 2
+    assert "not a hedged one" in capsys.readouterr().err

@@ -42,6 +42,10 @@ class GPTHardLWM(WorldModel):
         batch.routed = torch.tensor([[self.route(d) for d in descriptions]])
         return batch
 
+    def routed_identity(self, text: str, encoder: FrozenTextEncoder | None = None) -> int:
+        """The identity id a description is routed to (0: none)."""
+        return self.route(text)
+
     def condition(self, manual: ManualBatch) -> Conditioning:
         if manual.features is None or manual.routed is None:
             raise ValueError("GPTHard needs the encoded descriptions and the parser's routing")

@@ -300,58 +300,45 @@ def practice_codes(codes: torch.Tensor, rate: float, open_rate: float = 0.5) -> 
     return codes - open_movement * movement_bits - open_role * role_bits, force
 
 
-class HedgedEmmaLWM(EmmaLWM):
-    """EMMA-LWM whose readings of descriptions are checked against their words (module docstring).
-    Its weights are an EMMA-LWM's plus the 108 prototypes (buffers `proto_keys`, `proto_values`)."""
+class HedgedReading:
+    """What a hedged world model does whatever reads its descriptions (mixed in before the model's
+    class): the words travel as `words_code`; the 108 prototypes and the stand distance are buffers;
+    a manual is read every way its words allow (`readings`) and predicted and imagined as their
+    mixture. A model class gives `_read` (each description's key and value [B, 3, W] as it reads
+    them), `_read_texts` (the same for N descriptions alone) and `_tables` (what each id reads
+    under each reading)."""
 
-    kind = "emma-hedged"
     route = staticmethod(words_code)
 
-    def __init__(self, config: WorldModelConfig) -> None:
-        super().__init__(config)
-        h = config.decoder.hidden
-        self.register_buffer("proto_keys", torch.zeros(len(ALL_TRIPLES), h))
-        self.register_buffer("proto_values", torch.zeros(len(ALL_TRIPLES), h))
-        # A reading this near its nearest prototype stands whatever the words say: the median such
-        # distance of the dataset's training descriptions (`fit_stand_distance`).
+    def _init_hedging(self, key_width: int, value_width: int) -> None:
+        self.register_buffer("proto_keys", torch.zeros(len(ALL_TRIPLES), key_width))
+        self.register_buffer("proto_values", torch.zeros(len(ALL_TRIPLES), value_width))
+        # A reading this near its nearest prototype stands whatever the words say (`fit_stand_distance`).
         self.register_buffer("stand_distance", torch.zeros(()))
-        self.practice_rate = 0.0  # set by practise_hedges: training only
-        # Read a manual every way its words allow and imagine each (`readings`); off: the mean
-        # prototype of what they allow (the rule before, kept to compare).
+        # Read a manual every way its words allow and imagine each (`readings`); off (EMMA-LWM only):
+        # the mean prototype of what they allow (the rule before, kept to compare).
         self.mixture = True
         self.own_weight = OWN_WEIGHT  # the prior of the model's own reading among several
         self.other_identity = OTHER_IDENTITY  # the prior of its entity where the words name another
 
-    def practise_hedges(self, rate: float) -> None:
-        """Train the decoder on hedged readings (`lwm train --hedge-practice`): in training mode a
-        share `rate` of the descriptions is read as a hedge would read them (`practice_codes`).
-        The reader is frozen, so that the prototypes and the stand distance, readings of this
-        reader, stay true."""
-        from .reader_tuning import reader_parameters  # the tuning module: only needed to train
-
-        self.practice_rate = rate
-        for p in reader_parameters(self):
-            p.requires_grad_(False)
-
     def read_manual(self, descriptions, encoder, parse=None) -> ManualBatch:
-        batch = super().read_manual(descriptions, encoder)
+        batch = WorldModel.read_manual(self, descriptions, encoder)
         batch.routed = torch.tensor([[words_code(d, encoder) for d in descriptions]])
         return batch
 
-    def _hedged(self, manual: ManualBatch) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """The keys and values [B, 3, W] to condition on, and where the model's reading stood."""
-        if manual.features is None or manual.mask is None or manual.routed is None:
-            raise ValueError("a hedged EMMA-LWM needs the manual's encoded descriptions and their words")
-        keys, values = self.reader.read(self.text_encoder(manual.features, manual.mask), manual.mask)
-        codes, force = manual.routed, None
-        if self.training and self.practice_rate > 0:
-            codes, force = practice_codes(codes, self.practice_rate)
-        return hedge(keys, values, codes, self.proto_keys, self.proto_values, self.stand_distance, force)
+    def _read(self, manual: ManualBatch) -> tuple[torch.Tensor, torch.Tensor]:
+        raise NotImplementedError
+
+    def _read_texts(self, encoder: FrozenTextEncoder, texts: list[str]) -> tuple[torch.Tensor, torch.Tensor]:
+        raise NotImplementedError
+
+    def _tables(self, r: Readings) -> torch.Tensor:
+        raise NotImplementedError
 
     def _readings(self, manual: ManualBatch) -> Readings:
         if manual.features is None or manual.mask is None or manual.routed is None:
-            raise ValueError("a hedged EMMA-LWM needs the manual's encoded descriptions and their words")
-        keys, values = self.reader.read(self.text_encoder(manual.features, manual.mask), manual.mask)
+            raise ValueError(f"a {self.kind} model needs the manual's encoded descriptions and their words")
+        keys, values = self._read(manual)
         return readings(
             keys,
             values,
@@ -363,17 +350,8 @@ class HedgedEmmaLWM(EmmaLWM):
             other_identity=self.other_identity,
         )
 
-    def _tables(self, r: Readings) -> torch.Tensor:
-        """[R, 17, W]: what each id reads under each reading."""
-        return self.reader.attend(r.keys, r.values, self.obs_embedding(torch.arange(NUM_IDS, device=r.keys.device)))
-
     def condition(self, manual: ManualBatch) -> Conditioning:
-        """One row per manual: in training (and with `mixture` off) the mean-prototype hedge, else
-        the likeliest reading."""
-        if self.training or not self.mixture:
-            keys, values, _ = self._hedged(manual)
-            ids = torch.arange(NUM_IDS, device=keys.device)
-            return Conditioning(id_table=self.reader.attend(keys, values, self.obs_embedding(ids)))
+        """One row per manual: the likeliest reading."""
         r = self._readings(manual)
         firsts = torch.searchsorted(r.owner, torch.arange(len(manual.routed)))
         return Conditioning(id_table=self._tables(r)[firsts])
@@ -415,17 +393,17 @@ class HedgedEmmaLWM(EmmaLWM):
         valid = lengths.to(tokens.device)[:, None] * BLOCK
         return {k: (mixed[k], targets[k], (positions[k] + 1)[None, :] < valid) for k in slots}
 
+    def _stands(self, manual: ManualBatch) -> torch.Tensor:
+        """[B, 3]: where the model's own reading is the only one."""
+        return self._readings(manual).alone
+
     @torch.no_grad()
     def unsure(self, manual: ManualBatch) -> list[dict]:
         """Per description of a batch-of-one manual: the fields ("identity", "movement", "role") its
         words leave open (`open`), and whether the world model's own reading stood (`guessed`: it
         filled them in itself) or it imagines a mixture of what the words allow."""
-        if self.mixture:  # one reading, the model's own; else it imagines each (its own likeliest)
-            stands = self._readings(manual).alone
-        else:
-            _, _, stands = self._hedged(manual)
         out = []
-        for code, stood in zip(manual.routed[0].tolist(), stands[0].tolist()):
+        for code, stood in zip(manual.routed[0].tolist(), self._stands(manual)[0].tolist()):
             decided = (code // 16 > 0, (code // 4) % 4 > 0, code % 4 > 0)
             open_ = [f for f, d in zip(("identity", "movement", "role"), decided) if not d]
             out.append({"open": open_, "guessed": bool(stood)})
@@ -452,10 +430,66 @@ class HedgedEmmaLWM(EmmaLWM):
         """The distance within which a reading stands whatever the words say: the `quantile` of the
         distances of `texts` (the dataset's training descriptions) to their nearest prototype. A
         description read as near a prototype as most of the training text is read is one the model
-        reads in its own language."""
+        reads in its own language. Quantile 0: no reading stands by nearness (distance 0)."""
+        if quantile == 0:
+            self.stand_distance.fill_(0.0)
+            return
         keys, values = self._read_texts(encoder, texts)
         closest = prototype_distances(keys, values, self.proto_keys, self.proto_values).min(-1).values
         self.stand_distance.fill_(float(closest.quantile(quantile)))
+
+
+class HedgedEmmaLWM(HedgedReading, EmmaLWM):
+    """EMMA-LWM whose readings of descriptions are checked against their words (module docstring).
+    Its weights are an EMMA-LWM's plus the 108 prototypes (buffers `proto_keys`, `proto_values`):
+    a description's key and value are what its description attention reads."""
+
+    kind = "emma-hedged"
+
+    def __init__(self, config: WorldModelConfig) -> None:
+        super().__init__(config)
+        self._init_hedging(config.decoder.hidden, config.decoder.hidden)
+        self.practice_rate = 0.0  # set by practise_hedges: training only
+
+    def practise_hedges(self, rate: float) -> None:
+        """Train the decoder on hedged readings (`lwm train --hedge-practice`): in training mode a
+        share `rate` of the descriptions is read as a hedge would read them (`practice_codes`).
+        The reader is frozen, so that the prototypes and the stand distance, readings of this
+        reader, stay true."""
+        from .reader_tuning import reader_parameters  # the tuning module: only needed to train
+
+        self.practice_rate = rate
+        for p in reader_parameters(self):
+            p.requires_grad_(False)
+
+    def _read(self, manual: ManualBatch) -> tuple[torch.Tensor, torch.Tensor]:
+        return self.reader.read(self.text_encoder(manual.features, manual.mask), manual.mask)
+
+    def _hedged(self, manual: ManualBatch) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """The keys and values [B, 3, W] to condition on, and where the model's reading stood."""
+        if manual.features is None or manual.mask is None or manual.routed is None:
+            raise ValueError("a hedged EMMA-LWM needs the manual's encoded descriptions and their words")
+        keys, values = self._read(manual)
+        codes, force = manual.routed, None
+        if self.training and self.practice_rate > 0:
+            codes, force = practice_codes(codes, self.practice_rate)
+        return hedge(keys, values, codes, self.proto_keys, self.proto_values, self.stand_distance, force)
+
+    def _tables(self, r: Readings) -> torch.Tensor:
+        """[R, 17, W]: what each id reads under each reading."""
+        return self.reader.attend(r.keys, r.values, self.obs_embedding(torch.arange(NUM_IDS, device=r.keys.device)))
+
+    def condition(self, manual: ManualBatch) -> Conditioning:
+        """One row per manual: in training (and with `mixture` off) the mean-prototype hedge, else
+        the likeliest reading."""
+        if self.training or not self.mixture:
+            keys, values, _ = self._hedged(manual)
+            ids = torch.arange(NUM_IDS, device=keys.device)
+            return Conditioning(id_table=self.reader.attend(keys, values, self.obs_embedding(ids)))
+        return super().condition(manual)
+
+    def _stands(self, manual: ManualBatch) -> torch.Tensor:
+        return super()._stands(manual) if self.mixture else self._hedged(manual)[2]
 
     def _read_texts(self, encoder: FrozenTextEncoder, texts: list[str]) -> tuple[torch.Tensor, torch.Tensor]:
         """The key and value [N, W] this model reads from each text alone (reader_tuning.reading)."""
@@ -467,6 +501,7 @@ class HedgedEmmaLWM(EmmaLWM):
 
 __all__ = [
     "HedgedEmmaLWM",
+    "HedgedReading",
     "Readings",
     "candidates",
     "hedge",

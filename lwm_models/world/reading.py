@@ -70,8 +70,8 @@ def read_identities(
     model: WorldModel, encoder: FrozenTextEncoder | None, descriptions: Sequence[str]
 ) -> list[str | None]:
     """The identity `model` reads each description as about (None: it reads no text)."""
-    if model.route is not None and not hasattr(model, "reader"):
-        return [ID_TO_IDENTITY.get(int(model.route(d))) for d in descriptions]
+    if hasattr(model, "routed_identity"):  # GPTHard: the entity its words route it to
+        return [ID_TO_IDENTITY.get(int(model.routed_identity(d, encoder))) for d in descriptions]
     if not model.reads_text or encoder is None or not hasattr(model, "reader"):
         return [None] * len(descriptions)
     encoder = encoder.keeping(model.config.text.max_tokens)

@@ -10,12 +10,14 @@ from .description_encoder import TextConfig
 from .emma import EmmaLWM, ObservationalLWM
 from .gpt import DecoderConfig
 from .gpthard import GPTHardLWM
+from .hedged_gpthard import HedgedGPTHardLWM
 from .hedged_reading import HedgedEmmaLWM
 from .oracle import OracleParseLWM
 from .standard import StandardLWM
 
 KINDS: dict[str, type[WorldModel]] = {
-    cls.kind: cls for cls in (EmmaLWM, HedgedEmmaLWM, ObservationalLWM, StandardLWM, GPTHardLWM, OracleParseLWM)
+    cls.kind: cls
+    for cls in (EmmaLWM, HedgedEmmaLWM, ObservationalLWM, StandardLWM, GPTHardLWM, HedgedGPTHardLWM, OracleParseLWM)
 }
 
 PRESETS: dict[str, WorldModelConfig] = {

@@ -35,6 +35,7 @@ WORLD_MODELS = (
     ShippedModel("observational", "observational", "observational", "Observational", table3=True),
     ShippedModel("standard", "standard", "standard", "Standard"),
     ShippedModel("gpthard", "gpthard", "gpthard", "GPTHard"),
+    ShippedModel("gpthard-hedged", "gpthard-hedged", "gpthard-hedged", "GPTHard, hedged"),
     ShippedModel("emma", "emma-lwm", "emma", "EMMA-LWM", table3=True),
     ShippedModel("emma-freeform", "emma-lwm-freeform", "emma", "EMMA-LWM free-form"),
     ShippedModel("emma-reader", "emma-lwm-reader", "emma", "EMMA-LWM, reader tuned"),
