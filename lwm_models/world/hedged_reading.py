@@ -36,6 +36,9 @@ checkpoint `emma-lwm-practised`), and training always uses `hedge`.
 
 The words travel with the manual as `ManualBatch.routed`: one int per description (`words_code`),
 so datasets and the world-model server fill it as they fill GPTHard's routing.
+
+What does not depend on how a model reads a description (the prototypes, the readings, the
+mixture) is `HedgedReading`, which GPTHard reading with hedges shares (world/hedged_gpthard.py).
 """
 
 from __future__ import annotations
