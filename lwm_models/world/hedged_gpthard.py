@@ -13,9 +13,9 @@ description is hedged over the entities too, which plain GPTHard drops.
 
 No weight changes: a checkpoint is GPTHard's plus the prototypes (the mean value GPTHard reads
 from the project's generated descriptions of each triple; scripts/hedged_checkpoint.py). Its
-reading never stands by nearness alone (stand distance 0): on the stress set's dev part, GPTHard's
-reading of free-form text lies as near the prototypes as the dataset's text does, and letting it
-stand made the mixture worse on every style tried (docs/language.md).
+reading never stands by nearness alone (stand distance 0): on the stress set's dev part, letting it
+stand within EMMA-LWM's distance (the median of the dataset's training text) made six of the seven
+styles worse (docs/language.md).
 """
 
 from __future__ import annotations
