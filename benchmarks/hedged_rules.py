@@ -7,8 +7,9 @@ same triples), and Table 2's imagined reward / termination precision (raw sampli
 dataset's text (`--imagine-styles`: with each dev style too). Rules: "mean" (EMMA-LWM only: a
 description the words do not agree with is read as the mean prototype of what they allow) and
 "mixture:W:Q" (every reading the words allow, the model's own with prior W and the model's entity,
-where the words name another, with prior Q; `hedged_reading.readings`); `--stand-quantiles` runs
-each rule with each stand distance. Observational, which reads no text, is the line to beat.
+where the words name another, with prior Q; `hedged_reading.readings`), either with "+ground" (the
+words' entities grounded on each episode's board first); `--stand-quantiles` runs each rule with
+each stand distance. Observational, which reads no text, is the line to beat.
 Every figure comes from this one run, so the rules are compared on the same episodes and code.
 
     flock /tmp/lwm-heavy.lock .venv/bin/python benchmarks/hedged_rules.py --data data/human \\
@@ -45,7 +46,12 @@ CHECKPOINTS = ROOT / "lwm_models" / "checkpoints"
 
 def set_rule(model, rule: str) -> None:
     """Read with `rule`: "mean", or "mixture:W:Q" (W the prior of the model's own reading, default
-    0.8; Q that of its entity where the words name another, default 0.15)."""
+    0.8; Q that of its entity where the words name another, default 0.15); "+ground" after either
+    grounds the words' entities on each episode's board first (`hedged_reading.ground_words`)."""
+    rule, plus, extra = rule.partition("+")
+    if plus and extra != "ground":
+        raise LwmError(f"unknown rule {rule + plus + extra!r}: the one addition is +ground")
+    model.ground = bool(plus)
     name, *numbers = rule.split(":")
     if name == "mean" and not numbers:
         if not hasattr(model, "_hedged"):

@@ -335,3 +335,82 @@ def test_the_rules_benchmark_refuses_what_it_cannot_compare(capsys):
     assert "no mean-prototype rule" in capsys.readouterr().err
     assert bench.main(["--data", "data/none", "--checkpoint", gpthard]) == 2
     assert "not a hedged one" in capsys.readouterr().err
+
+
+def test_words_naming_an_entity_off_the_board_are_grounded_on_it():
+    from lwm_models.messenger.constants import IDENTITIES
+    from lwm_models.world.hedged_reading import ground_words
+
+    plane, ball, robot, queen = (IDENTITIES[n] for n in ("airplane", "ball", "robot", "queen"))
+    words = [words_code("the plane chases you and it is deadly."), words_code("the ball is the goal."),
+             words_code("the queen has the message.")]  # fmt: skip
+    codes = torch.tensor([words])
+    grounded = ground_words(codes, torch.tensor([[plane, ball, robot]]))
+    # the queen is not on the board; the robot is the one entity no other description names
+    assert (grounded // 16).tolist() == [[plane, ball, robot]]
+    assert torch.equal(grounded % 16, codes % 16)  # movement and role as the words say
+    # two descriptions off the board: which is which is open
+    assert (ground_words(codes, torch.tensor([[plane, 0, robot]])) // 16).tolist() == [[plane, 0, 0]]
+    # every description on the board: unchanged
+    assert torch.equal(ground_words(codes, torch.tensor([[plane, ball, queen]])), codes)
+
+
+def test_a_hedged_model_grounds_its_words_only_when_its_config_says_so(hedged, tmp_path):
+    from lwm_models.data.dataset import generate_dataset
+    from lwm_models.text.pools import DescriptionPools
+    from lwm_models.text.stress import stress_pools
+    from lwm_models.world.base import ManualBatch
+    from lwm_models.world.hedged_reading import ground_words
+    from lwm_models.world.tokens import ID_SLOTS
+    from lwm_models.world.training_data import SplitTokens, redraw_manuals
+
+    model, config = hedged
+    assert model.ground is bool(config["hedged_reading"].get("ground", False))
+    board = torch.tensor([[2, 3, 5]])
+    manual = ManualBatch(routed=torch.tensor([[7 * 16 + 5, 3 * 16 + 6, 2 * 16 + 9]]))
+    saved = model.ground
+    try:
+        model.ground = False
+        assert model.on_board(manual, board) is manual
+        model.ground = True
+        assert (model.on_board(manual, board).routed // 16).tolist() == [[5, 3, 2]]
+        # teacher-forced, the board is each episode's first observation: exactly the episodes
+        # whose words name an entity off their board are predicted otherwise
+        generate_dataset(tmp_path, DescriptionPools.generated(), max_games=12, train_episodes_per_game=2,
+                         splits=("newall-dev",))  # fmt: skip
+        encoder = model.frozen_text_encoder()
+        data = SplitTokens(tmp_path, "newall-dev", encoder, model.route)
+        redraw_manuals(data, stress_pools("typos", "dev"), encoder, 0)
+        tokens, lengths, episodes = next(iter(data.full_episodes(24, 24)))
+        changed = (ground_words(episodes.routed, tokens[:, torch.as_tensor(ID_SLOTS)]) != episodes.routed).any(-1)
+        assert changed.any() and not changed.all()
+        obs = {}
+        for ground in (False, True):
+            model.ground = ground
+            with torch.no_grad():
+                obs[ground] = model.predictions(tokens, lengths, episodes)["obs"][0]
+        differs = (obs[True] - obs[False]).abs().flatten(1).amax(1) > 1e-6
+        assert torch.equal(differs, changed)
+    finally:
+        model.ground = saved
+
+
+def test_the_server_conditions_on_the_board_of_the_starts_and_caches_per_board(hedged):
+    from lwm_models.data.splits import load_split
+    from lwm_models.messenger.engine import BatchedMessenger
+    from lwm_models.world.frozen_text import FrozenTextEncoder
+    from lwm_models.world.imagine import board_of
+    from lwm_models.world.model_server import WorldModelServer
+
+    srv = WorldModelServer(checkpoint=HEDGED, encoder=FrozenTextEncoder())
+    srv.model.ground = True
+    engine = BatchedMessenger()
+    engine.reset(load_split("newall-test")[:2], [0, 0])
+    starts = engine.compact_observation()
+    srv.set_manual(["the plane chases you and it is deadly.", "the ball has the message.", "the robot is the goal."])
+    state = srv.state()
+    first = srv._conditioning(state.batch, state, board_of(starts[:1]))
+    assert srv._conditioning(state.batch, state, board_of(starts[:1])) is first  # computed once per board
+    if not torch.equal(board_of(starts[:1]), board_of(starts[1:2])):
+        assert srv._conditioning(state.batch, state, board_of(starts[1:2])) is not first
+        assert state.cond_board == tuple(board_of(starts[1:2]).flatten().tolist())

@@ -200,6 +200,12 @@ class WorldModel(nn.Module):
     def condition(self, manual: ManualBatch) -> Conditioning:
         raise NotImplementedError
 
+    def on_board(self, manual: ManualBatch, board: torch.Tensor) -> ManualBatch:
+        """The manual as this model reads it on a board (`board` [B, K]: the identity ids of each
+        manual's entities, 0 for none). Most models read a manual the same on any board; a hedged
+        one may ground its words' entities on it (world/hedged_reading.py, `ground_words`)."""
+        return manual
+
     @torch.inference_mode()
     def condition_on(self, manual: ManualBatch) -> Conditioning:
         """`condition` for imagination (no autograd; once per manual, not per step)."""

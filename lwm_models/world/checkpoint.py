@@ -148,4 +148,5 @@ def load_checkpoint(directory: str | Path, kind: str | None = None) -> tuple[Wor
     # allow) or "mean" (the mean prototype of them, the rule before; emma-lwm-practised).
     if "hedged_reading" in config and hasattr(model, "mixture"):
         model.mixture = config["hedged_reading"].get("rule", "mixture") == "mixture"
+        model.ground = bool(config["hedged_reading"].get("ground", False))  # words grounded on the board
     return model.eval(), config

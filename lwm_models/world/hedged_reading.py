@@ -39,11 +39,14 @@ so datasets and the world-model server fill it as they fill GPTHard's routing.
 
 What does not depend on how a model reads a description (the prototypes, the readings, the
 mixture) is `HedgedReading`, which GPTHard reading with hedges shares (world/hedged_gpthard.py).
+A model whose checkpoint config says so (`hedged_reading.ground`) first grounds the words' entities
+on the board (`ground_words`: a manual describes the entities of one board), teacher-forced and in
+imagination alike (`WorldModel.on_board`).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import lru_cache
 
 import numpy as np
@@ -55,7 +58,7 @@ from .base import Conditioning, WorldModel, WorldModelConfig, _targets_layout
 from .emma import EmmaLWM
 from .frozen_text import FrozenTextEncoder
 from .manual import ManualBatch
-from .tokens import BLOCK, SLOT_DONE, SLOT_OBS, SLOT_REWARD
+from .tokens import BLOCK, ID_SLOTS, SLOT_DONE, SLOT_OBS, SLOT_REWARD
 
 PROTOTYPE_TEXTS = 24  # generated descriptions per triple averaged into its prototype
 STAND_QUANTILE = 0.5  # of the training descriptions' distances to their nearest prototype
@@ -291,6 +294,24 @@ def mixture_log_probs(
     return out
 
 
+def ground_words(codes: torch.Tensor, board: torch.Tensor) -> torch.Tensor:
+    """The words (`words_code` [B, 3]) with their entities grounded on each manual's board (identity
+    ids [B, K], 0 for none): a manual describes the entities of one board, so a description whose
+    words name an entity that is not on it (a misspelt or unusual name the parser read as another)
+    is about the board entity no other description names, when it is the only such description and
+    there is exactly one such entity; otherwise its entity is left open. Words naming an entity on
+    the board stay."""
+    out = codes.clone()
+    for b in range(codes.shape[0]):
+        on = [int(i) for i in board[b].tolist() if i > 0]
+        named = [int(c) // 16 for c in codes[b].tolist()]
+        off = [j for j, entity in enumerate(named) if entity not in on]
+        free = [i for i in on if i not in named]
+        for j in off:
+            out[b, j] += ((free[0] if len(off) == 1 and len(free) == 1 else 0) - named[j]) * 16
+    return out
+
+
 def practice_codes(codes: torch.Tensor, rate: float, open_rate: float = 0.5) -> tuple[torch.Tensor, torch.Tensor]:
     """Training inputs for the decoder: which descriptions [B, 3] to hedge (each with probability
     `rate`), and their words with the movement and the role each left open with probability
@@ -323,11 +344,24 @@ class HedgedReading:
         self.mixture = True
         self.own_weight = OWN_WEIGHT  # the prior of the model's own reading among several
         self.other_identity = OTHER_IDENTITY  # the prior of its entity where the words name another
+        # Ground the words' entities on the board before reading (`ground_words`); a checkpoint's
+        # config turns it on (`hedged_reading.ground`).
+        self.ground = False
 
     def read_manual(self, descriptions, encoder, parse=None) -> ManualBatch:
         batch = WorldModel.read_manual(self, descriptions, encoder)
         batch.routed = torch.tensor([[words_code(d, encoder) for d in descriptions]])
         return batch
+
+    def on_board(self, manual: ManualBatch, board: torch.Tensor) -> ManualBatch:
+        """With `ground` on, the manual with its words grounded on the board (`ground_words`; one
+        board row per manual, or one for all)."""
+        if not self.ground or manual.routed is None:
+            return manual
+        board = torch.as_tensor(board).long()
+        if len(board) != len(manual.routed):
+            board = board[:1].expand(len(manual.routed), -1)
+        return replace(manual, routed=ground_words(manual.routed, board))
 
     def _read(self, manual: ManualBatch) -> tuple[torch.Tensor, torch.Tensor]:
         raise NotImplementedError
@@ -376,7 +410,7 @@ class HedgedReading:
         (`mixture_log_probs`: the log-probabilities stand for the logits)."""
         if self.training or not self.mixture:
             return super().predictions(tokens, lengths, manual)
-        r = self._readings(manual)
+        r = self._readings(self.on_board(manual, tokens[:, torch.as_tensor(ID_SLOTS)]))
         tables = self._tables(r)
         parts: dict[str, list[torch.Tensor]] = {"obs": [], "reward": [], "done": []}
         for lo in range(0, len(r.owner), MIXTURE_ROWS):
@@ -507,6 +541,7 @@ __all__ = [
     "HedgedReading",
     "Readings",
     "candidates",
+    "ground_words",
     "hedge",
     "mixture_log_probs",
     "practice_codes",

@@ -322,6 +322,12 @@ class Trajectories:
         )
 
 
+def board_of(observations: np.ndarray | torch.Tensor) -> torch.Tensor:
+    """[N, 3]: the identity ids of the entities (0: an empty channel) of compact observations
+    [N, 4, 3] (channels 0-2 the entities, 3 the avatar; each channel's first value its id)."""
+    return torch.as_tensor(np.asarray(observations)[:, : NUM_CHANNELS - 1, 0], dtype=torch.long)
+
+
 def condition_rows(cond: Conditioning, n: int) -> Conditioning:
     """A conditioning on a manual (batch 1, broadcast; or one per trajectory) for n rows; of a
     manual read several ways, one reading per row (`Conditioning.rows_for`)."""
@@ -376,7 +382,7 @@ class StepwiseImagination:
         from .decoding import make_decoder_batch  # decoding's paths build on DecoderBatch, defined here
 
         self._rows = make_decoder_batch(model, decoding, use_cache)
-        cond = condition_rows(model.condition_on(manual), n)
+        cond = condition_rows(model.condition_on(model.on_board(manual, board_of(first))), n)
         self._rows.admit(cond, first, max_steps, temperature, torch.Generator().manual_seed(seed), constrained)
 
     @property

@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+import torch
 
 from .. import messages
 from ..data.episode import game_of
@@ -36,7 +37,7 @@ from .base import Conditioning
 from .checkpoint import load_checkpoint
 from .continuous import OneShot, run_alone
 from .frozen_text import FrozenTextEncoder
-from .imagine import Imagination, StepwiseImagination, condition_rows
+from .imagine import Imagination, StepwiseImagination, board_of, condition_rows
 from .manual import ManualBatch
 from .reading import grounding, read_identities, ungrounded_note, unsure_fields, unsure_note
 from .shipped import SYSTEM_WORLD_MODEL, shipped_checkpoint
@@ -66,7 +67,8 @@ class ManualState:
     source: str = ""
     game: str = ""  # split:index of the last environment manual
     batch: ManualBatch | None = None
-    cond: Conditioning | None = None  # the model's conditioning on `batch`, computed once
+    cond: Conditioning | None = None  # the model's conditioning on `batch`, computed once per board
+    cond_board: tuple = ()  # the board `cond` was computed on (a hedged model may ground its words on it)
 
     def to_json(self) -> dict:
         return {"manual": self.manual, "version": self.version, "source": self.source, "game": self.game}
@@ -320,7 +322,7 @@ class WorldModelServer:
         max_steps = int(request.get("max_steps", 32))
         starts, actions = self._trajectories(request, max_steps)
         return OneShot(
-            condition_rows(self._conditioning(batch, state), len(starts)),
+            condition_rows(self._conditioning(batch, state, board_of(starts[:1])), len(starts)),
             starts,
             actions,
             max_steps,
@@ -330,15 +332,16 @@ class WorldModelServer:
             info={"manual": manual, "manual_version": version},
         )
 
-    def _conditioning(self, batch: ManualBatch, state: ManualState | None) -> Conditioning:
-        """The model's conditioning on a manual; an agent's current manual's is computed once, not
-        per request (a few milliseconds of the text encoder each, measured)."""
+    def _conditioning(self, batch: ManualBatch, state: ManualState | None, board: torch.Tensor) -> Conditioning:
+        """The model's conditioning on a manual read on a board (`board` [1, 3] identity ids); an
+        agent's current manual's is computed once per board, not per request (a few milliseconds
+        of the text encoder each, measured)."""
         if state is None or state.batch is not batch:
-            return self.model.condition_on(batch)
-        cond = state.cond
-        if cond is None:
-            cond = state.cond = self.model.condition_on(batch)
-        return cond
+            return self.model.condition_on(self.model.on_board(batch, board))
+        key = tuple(board.flatten().tolist())
+        if state.cond is None or state.cond_board != key:
+            state.cond, state.cond_board = self.model.condition_on(self.model.on_board(batch, board)), key
+        return state.cond
 
     def answer(self, shot: OneShot) -> dict:
         """The response to a one-shot request that has ended."""
