@@ -325,7 +325,7 @@ class Trajectories:
 def board_of(observations: np.ndarray | torch.Tensor) -> torch.Tensor:
     """[N, 3]: the identity ids of the entities (0: an empty channel) of compact observations
     [N, 4, 3] (channels 0-2 the entities, 3 the avatar; each channel's first value its id)."""
-    return torch.as_tensor(np.asarray(observations)[:, : NUM_CHANNELS - 1, 0], dtype=torch.long)
+    return torch.from_numpy(np.array(np.asarray(observations)[:, : NUM_CHANNELS - 1, 0], dtype=np.int64))
 
 
 def condition_rows(cond: Conditioning, n: int) -> Conditioning:
