@@ -395,22 +395,25 @@ def test_a_hedged_model_grounds_its_words_only_when_its_config_says_so(hedged, t
         model.ground = saved
 
 
-def test_the_server_conditions_on_the_board_of_the_starts_and_caches_per_board(hedged):
-    from lwm_models.data.splits import load_split
-    from lwm_models.messenger.engine import BatchedMessenger
+def test_the_server_conditions_on_the_words_as_grounded_and_computes_them_once(hedged):
+    from lwm_models.messenger.constants import IDENTITIES
     from lwm_models.world.frozen_text import FrozenTextEncoder
-    from lwm_models.world.imagine import board_of
     from lwm_models.world.model_server import WorldModelServer
 
+    plane, ball, robot, queen = (IDENTITIES[n] for n in ("airplane", "ball", "robot", "queen"))
+    own_board, other_board = torch.tensor([[plane, ball, robot]]), torch.tensor([[plane, ball, queen]])
     srv = WorldModelServer(checkpoint=HEDGED, encoder=FrozenTextEncoder())
-    srv.model.ground = True
-    engine = BatchedMessenger()
-    engine.reset(load_split("newall-test")[:2], [0, 0])
-    starts = engine.compact_observation()
     srv.set_manual(["the plane chases you and it is deadly.", "the ball has the message.", "the robot is the goal."])
     state = srv.state()
-    first = srv._conditioning(state.batch, state, board_of(starts[:1]))
-    assert srv._conditioning(state.batch, state, board_of(starts[:1])) is first  # computed once per board
-    if not torch.equal(board_of(starts[:1]), board_of(starts[1:2])):
-        assert srv._conditioning(state.batch, state, board_of(starts[1:2])) is not first
-        assert state.cond_board == tuple(board_of(starts[1:2]).flatten().tolist())
+    # a model that does not ground reads the manual the same on any board: computed once
+    first = srv._conditioning(state.batch, state, own_board)
+    assert srv._conditioning(state.batch, state, other_board) is first
+    srv.model.ground = True
+    try:
+        on_own = srv._conditioning(state.batch, state, own_board)
+        assert srv._conditioning(state.batch, state, own_board) is on_own  # the same words: once
+        # on a board without the robot, the goal is the queen: other words, conditioned anew
+        on_other = srv._conditioning(state.batch, state, other_board)
+        assert on_other is not on_own and [w // 16 for w in state.cond_words] == [plane, ball, queen]
+    finally:
+        srv.model.ground = False

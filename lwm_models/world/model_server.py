@@ -67,8 +67,8 @@ class ManualState:
     source: str = ""
     game: str = ""  # split:index of the last environment manual
     batch: ManualBatch | None = None
-    cond: Conditioning | None = None  # the model's conditioning on `batch`, computed once per board
-    cond_board: tuple = ()  # the board `cond` was computed on (a hedged model may ground its words on it)
+    cond: Conditioning | None = None  # the model's conditioning on `batch` as read on a board
+    cond_words: tuple = ()  # the words `cond` read (a grounding model's depend on the board)
 
     def to_json(self) -> dict:
         return {"manual": self.manual, "version": self.version, "source": self.source, "game": self.game}
@@ -334,13 +334,15 @@ class WorldModelServer:
 
     def _conditioning(self, batch: ManualBatch, state: ManualState | None, board: torch.Tensor) -> Conditioning:
         """The model's conditioning on a manual read on a board (`board` [1, 3] identity ids); an
-        agent's current manual's is computed once per board, not per request (a few milliseconds
-        of the text encoder each, measured)."""
+        agent's current manual's is computed once for the words it reads, not per request (a few
+        milliseconds of the text encoder each, measured): once per manual, unless the model grounds
+        its words on the board and the board changes what they say."""
+        read = self.model.on_board(batch, board)
         if state is None or state.batch is not batch:
-            return self.model.condition_on(self.model.on_board(batch, board))
-        key = tuple(board.flatten().tolist())
-        if state.cond is None or state.cond_board != key:
-            state.cond, state.cond_board = self.model.condition_on(self.model.on_board(batch, board)), key
+            return self.model.condition_on(read)
+        words = () if read is batch else tuple(read.routed.flatten().tolist())
+        if state.cond is None or state.cond_words != words:
+            state.cond, state.cond_words = self.model.condition_on(read), words
         return state.cond
 
     def answer(self, shot: OneShot) -> dict:
