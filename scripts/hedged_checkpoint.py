@@ -5,9 +5,9 @@ descriptions and the distance within which a reading stands (from the dataset's 
 descriptions; none for GPTHard, world/hedged_gpthard.py). Nothing is trained; it takes seconds.
 
     .venv/bin/python scripts/hedged_checkpoint.py --data data/human \\
-        --source lwm_models/checkpoints/emma-lwm-reader --out lwm_models/checkpoints/emma-lwm-hedged
+        --source lwm_models/checkpoints/emma-lwm-reader --out lwm_models/checkpoints/emma-lwm-hedged --ground
     .venv/bin/python scripts/hedged_checkpoint.py --data data/human \\
-        --source lwm_models/checkpoints/gpthard --out lwm_models/checkpoints/gpthard-hedged
+        --source lwm_models/checkpoints/gpthard --out lwm_models/checkpoints/gpthard-hedged --ground
 """
 
 from __future__ import annotations
@@ -44,6 +44,11 @@ def main() -> int:
         help=f"quantile of the training descriptions' distances within which a reading stands "
         f"(default {STAND_QUANTILE} for EMMA-LWM, 0 for GPTHard: none stands)",
     )
+    ap.add_argument(
+        "--ground",
+        action="store_true",
+        help="ground the words' entities on the board before reading (hedged_reading.ground_words)",
+    )
     args = ap.parse_args()
     hedged_kinds = {"emma": (HedgedEmmaLWM, STAND_QUANTILE), "gpthard": (HedgedGPTHardLWM, 0.0)}
     try:
@@ -72,6 +77,7 @@ def main() -> int:
         "stand_quantile": quantile,
         "stand_distance": round(float(hedged.stand_distance), 4),
         "rule": "mixture",  # read every way the words allow (hedged_reading.readings)
+        "ground": args.ground,
     }
     save_checkpoint(hedged, args.out, meta, dtype=torch.float16)
     print(f"wrote {args.out}")

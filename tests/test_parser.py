@@ -8,7 +8,14 @@ import pytest
 
 from lwm_models.messenger.constants import ALL_TRIPLES, IDENTITIES
 from lwm_models.text import generate_descriptions, load_description_file
-from lwm_models.text.parser import parse_description, parse_movement, parse_role, parser_accuracy, route_identity_id
+from lwm_models.text.parser import (
+    normalise,
+    parse_description,
+    parse_movement,
+    parse_role,
+    parser_accuracy,
+    route_identity_id,
+)
 from lwm_models.text.stress import stress_texts
 
 VAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "messenger-texts" / "text_val.json"
@@ -60,6 +67,32 @@ def test_negations_and_free_form(text, expected):
     assert parse_description(text) == expected
 
 
+@pytest.mark.parametrize(
+    "text, expected",
+    [
+        # an idiom holding another value's cue is read whole: "stays" alone would be immovable
+        ("the hound stays away from you and is the goal", ("dog", "fleeing", "goal")),
+        ("the hound stays on your tail and is the goal", ("dog", "chaser", "goal")),
+        # idioms that only occur negated: the negation does not cancel them
+        ("the hound won't leave you alone and is the goal", ("dog", "chaser", "goal")),
+        ("the hound never leaves its spot and is the goal", ("dog", "immovable", "goal")),
+        ("the hound never lets you get close and is the goal", ("dog", "fleeing", "goal")),
+        # "news" is a message cue, "bad news" an enemy; where the message is is not where it goes
+        ("the hound is bad news and zeroes in on you", ("dog", "chaser", "enemy")),
+        ("the hound is where the message is; it never stirs", ("dog", "immovable", "message")),
+        ("the hound is where you bring the message; it makes a run for it", ("dog", "fleeing", "goal")),
+    ],
+)
+def test_idioms(text, expected):
+    assert parse_description(text) == expected
+
+
+def test_common_words_are_not_mended_into_keywords():
+    # one letter from a keyword is a typo only for a word that is no word of its own
+    assert normalise("a friend looks around among us, carried along") == "a friend looks around among us, carried along"
+    assert normalise("the plane zetoes in on you") == "the plane zeroes in on you"
+
+
 def test_a_lone_negation_is_no_answer():
     # "not the goal" alone leaves enemy and message: the parser must not answer "goal"
     assert parse_role("the hound is not the goal") is None
@@ -74,8 +107,8 @@ def test_the_encoder_guess_never_answers_what_a_negation_denies():
     assert parse_role("the hound is not the goal", encoder) != "goal"
     assert parse_role("the hound is not the goal and not the enemy", encoder) == "message"
     # no keyword says how it moves; the guess reads the clause
-    assert parse_movement("the hound is glued to its square") is None
-    assert parse_movement("the hound is glued to its square", encoder) == "immovable"
+    assert parse_movement("the hound is carved into its square") is None
+    assert parse_movement("the hound is carved into its square", encoder) == "immovable"
 
 
 def test_stress_set_negation_style():

@@ -9,6 +9,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from lwm_models import messages
 from lwm_models.data.splits import load_split
 from lwm_models.text import DescriptionPools
 from lwm_models.world.checkpoint import load_checkpoint
@@ -73,6 +74,31 @@ def test_the_world_model_server_flags_a_manual_about_another_board(tmp_path):
     note = sim.ungrounded()
     assert note is not None and "not on this board" in note and foreign[0][0] in note, note
     assert [r["on_board"] for r in sim.status()["reading"]][:2] == [False, False]
+
+
+def test_the_server_says_which_board_entity_a_grounding_model_takes_a_stray_name_as(tmp_path):
+    # The served model grounds its words: one description naming an entity off the board, with one
+    # board entity no description names, is taken as about that entity, and the person is told so.
+    game = load_split("newall-test")[0]
+    board = [e.identity for e in game.entities]
+    sim = WorldModelServer(state_path=tmp_path / "state.json")
+    assert sim.model.ground
+    pools = DescriptionPools.generated()
+    sim.take_env_manual(pools.draw("newall-test", list(game.triples), np.random.default_rng(1)), "newall-test:0:0")
+    stray = next(t for g in load_split("newall-test") for t in g.triples if t[0] not in board)
+    manual = pools.draw("newall-test", [stray, *game.triples[1:]], np.random.default_rng(3))
+    sim.set_manual(manual, "human")
+    reading = sim.status()["reading"]
+    assert reading[0] == {
+        "identity": stray[0],
+        "on_board": False,
+        "grounded_as": board[0],
+        **{k: reading[0][k] for k in ("unsure", "guessed") if k in reading[0]},
+    }
+    assert all("grounded_as" not in r for r in reading[1:])
+    note = sim.ungrounded()
+    assert f"as about the {stray[0]}, not on this board" in note and f"as about the {board[0]}, the one" in note, note
+    messages.dump("status", sim.status())  # the schema takes what the page is sent
 
 
 def test_a_model_trained_on_longer_descriptions_reads_them_whole(emma):

@@ -53,6 +53,7 @@ def test_a_world_model_recipe_parses_to_what_its_checkpoint_was_trained_with(nam
         assert made == {
             "prototype_texts": PROTOTYPE_TEXTS,
             "stand_quantile": STAND_QUANTILE,  # unless the recipe gives another (GPTHard: 0)
+            "ground": False,  # unless the recipe grounds the words on the board
             **_recipe(name)["options"],
             "rule": "mixture",  # the script's rule: every reading the words allow
         }

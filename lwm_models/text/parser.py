@@ -10,7 +10,10 @@ keyword. A description with no known keyword falls back to the nearest identity 
 frozen text encoder's embedding space, when an encoder is given.
 
 Movement and role: ordered keyword rules (negated motion before motion, "away" before "toward",
-enemy cues before goal and message cues), read after the same typo correction. A cue inside a
+enemy cues before goal and message cues), read after the same typo correction. Idioms that hold
+another value's cue come first ("stays away" before "stays", "where the message is" before "where
+the message goes"); common words one letter from a keyword are correction targets of their own, so
+that "carried" stays "carried". A cue inside a
 negation's scope does not count: "the hound is not the goal" says nothing for goal. A scope runs
 from "not", "n't", "never", "no", "nor", "neither" to the end of its clause (punctuation, a
 conjunction such as "and" or "but", or a verb starting a new predicate: in "the bird that doesn't
@@ -193,7 +196,7 @@ def _decide(lowered: str, rules) -> tuple[str | None, list[str]]:
             negated = True
         if negated:
             ruled_out.append(name)
-    left = [name for name, _ in rules if name not in ruled_out]
+    left = list(dict.fromkeys(name for name, _ in rules if name not in ruled_out))  # a value may head two rules
     return (left[0] if len(left) == 1 else None), ruled_out
 
 

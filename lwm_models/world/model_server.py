@@ -33,6 +33,7 @@ import torch
 from .. import messages
 from ..data.episode import game_of
 from ..errors import LwmError
+from ..messenger.constants import ID_TO_IDENTITY, IDENTITIES
 from .base import Conditioning
 from .checkpoint import load_checkpoint
 from .continuous import OneShot, run_alone
@@ -189,10 +190,23 @@ class WorldModelServer:
             state, board = self.state(agent), self.board(agent)
             if not state.manual:
                 return None
-            notes = [unsure_note(state.manual, state.unsure)]
+            grounded, unsure = self._on_board(state, board)
+            notes = [unsure_note(state.manual, unsure)]
             if board is not None and state.reading is not None:
-                notes.insert(0, ungrounded_note(state.manual, state.reading, board))
+                notes.insert(0, ungrounded_note(state.manual, state.reading, board, grounded))
             return "; ".join(n for n in notes if n) or None
+
+    def _on_board(self, state: ManualState, board: list[str] | None) -> tuple[list | None, list | None]:
+        """A model that grounds its words on the board (hedged_reading.ground_words) reads them as
+        grounded: the identity each description is taken as about there (None: left open), and
+        what the grounded words leave open. (None, the read-back) for any other model or board."""
+        if board is None or state.batch is None or state.batch.routed is None:
+            return None, state.unsure
+        ids = torch.tensor([[IDENTITIES[b] for b in board]])
+        read = self.model.on_board(state.batch, ids)
+        if read is state.batch:
+            return None, state.unsure
+        return [ID_TO_IDENTITY.get(int(c) // 16) for c in read.routed[0]], unsure_fields(self.model, read, state.manual)
 
     def take_env_manual(
         self, descriptions: list[str], episode_id: str = "", agent: str | None = None
@@ -231,7 +245,8 @@ class WorldModelServer:
         if board is not None:
             out["board"] = board
             if state.manual and state.reading is not None and any(r is not None for r in state.reading):
-                out["reading"] = grounding(state.reading, board, state.unsure)
+                grounded, unsure = self._on_board(state, board)
+                out["reading"] = grounding(state.reading, board, unsure, grounded)
         return out
 
     def _save(self) -> None:

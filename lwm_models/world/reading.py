@@ -104,10 +104,19 @@ def unsure_fields(model: WorldModel, manual: ManualBatch, descriptions: Sequence
     return out
 
 
-def grounding(read: Sequence[str | None], board: Sequence[str], unsure: Sequence[dict] | None = None) -> list[dict]:
-    """Per description: the identity read, whether that entity is on the board, and (hedged models)
-    what the words leave open and whether the world model guessed it."""
+def grounding(
+    read: Sequence[str | None],
+    board: Sequence[str],
+    unsure: Sequence[dict] | None = None,
+    grounded: Sequence[str | None] | None = None,
+) -> list[dict]:
+    """Per description: the identity read, whether that entity is on the board, (a model that
+    grounds its words, `grounded`) the board entity it takes a description read as about another
+    as about, and (hedged models) what the words leave open and whether the world model guessed it."""
     out = [{"identity": r, "on_board": r is not None and r in board} for r in read]
+    for entry, g in zip(out, grounded or []):
+        if not entry["on_board"] and g is not None and g in board:
+            entry["grounded_as"] = g
     for entry, u in zip(out, unsure or []):
         if u["open"]:
             entry["unsure"] = list(u["open"])
@@ -115,14 +124,25 @@ def grounding(read: Sequence[str | None], board: Sequence[str], unsure: Sequence
     return out
 
 
-def ungrounded_note(descriptions: Sequence[str], read: Sequence[str | None], board: Sequence[str]) -> str | None:
+def ungrounded_note(
+    descriptions: Sequence[str],
+    read: Sequence[str | None],
+    board: Sequence[str],
+    grounded: Sequence[str | None] | None = None,
+) -> str | None:
     """What to tell a person whose descriptions the world model reads as about entities that are
-    not on the board, or None when every description is about one that is."""
+    not on the board (and, for a model that grounds its words, `grounded`, which board entity it
+    takes each as about instead), or None when every description is about one that is."""
     off = [(i, r) for i, r in enumerate(read) if r is not None and r not in board]
     if not off:
         return None
     said = " and ".join(f'"{_short(descriptions[i])}" as about the {r}' for i, r in off)
-    return f"the world model reads {said}, not on this board ({', '.join(board)})"
+    note = f"the world model reads {said}, not on this board ({', '.join(board)})"
+    taken = [(i, grounded[i]) for i, _ in off if grounded and grounded[i] is not None and grounded[i] in board]
+    if taken:
+        as_ = " and ".join(f'"{_short(descriptions[i])}" as about the {g}' for i, g in taken)
+        note += f"; it takes {as_}, the one entity on the board no other description names"
+    return note
 
 
 def unsure_note(descriptions: Sequence[str], unsure: Sequence[dict] | None) -> str | None:
