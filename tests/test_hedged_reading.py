@@ -406,6 +406,7 @@ def test_the_server_conditions_on_the_words_as_grounded_and_computes_them_once(h
     srv.set_manual(["the plane chases you and it is deadly.", "the ball has the message.", "the robot is the goal."])
     state = srv.state()
     # a model that does not ground reads the manual the same on any board: computed once
+    srv.model.ground = False
     first = srv._conditioning(state.batch, state, own_board)
     assert srv._conditioning(state.batch, state, other_board) is first
     srv.model.ground = True

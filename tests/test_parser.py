@@ -107,8 +107,8 @@ def test_the_encoder_guess_never_answers_what_a_negation_denies():
     assert parse_role("the hound is not the goal", encoder) != "goal"
     assert parse_role("the hound is not the goal and not the enemy", encoder) == "message"
     # no keyword says how it moves; the guess reads the clause
-    assert parse_movement("the hound is carved into its square") is None
-    assert parse_movement("the hound is carved into its square", encoder) == "immovable"
+    assert parse_movement("the hound is bolted to its square") is None
+    assert parse_movement("the hound is bolted to its square", encoder) == "immovable"
 
 
 def test_stress_set_negation_style():

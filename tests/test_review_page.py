@@ -344,7 +344,11 @@ def test_review_in_the_browser(unnamed_page_system, browser):
     browser.find_element("id", "send-manual").click()
     wait.until(lambda _: "not on this board" in text("message"))
     assert f"as about the {stranger}, not on this board" in text("message")
-    wait.until(lambda _: f"{stranger} (not on this board)" in text("reading"))
+    # The served model grounds its words: the one board entity no other description names is taken
+    # as the stray description's, and the person is told which.
+    wait.until(lambda _: f"{stranger} (not on this board: taken as the " in text("reading"))
+    taken = json.load(urllib.request.urlopen(url + "api/state", timeout=10))["status"]["reading"][0]["grounded_as"]
+    assert taken in status["board"] and f"as about the {taken}, the one entity on the board" in text("message")
     shoot(browser, tmp_path, "review_page_off_board.png", "reading")
 
     # Words that leave a fact open: the world model says which, at once, under the manual too.

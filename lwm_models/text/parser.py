@@ -259,13 +259,16 @@ def _prototypes(encoder) -> tuple[list[str], np.ndarray]:
 @lru_cache(maxsize=4)
 def _value_prototypes(encoder, field: str) -> tuple[list[str], np.ndarray]:
     """Phrases that state a movement (or role): the generator's and the keyword table's own
-    phrases (whole words only, not stems), with their value."""
+    phrases (whole words only, not stems), with their value; not the cues that only occur negated
+    ("leaves its spot" says the opposite of "never leaves its spot")."""
     if field == "movement":
         lexicons, rules = (MOVEMENT_PHRASES, MOVEMENT_CLAUSES, MOVEMENT_ADJECTIVES), MOVEMENT_RULES
     else:
         lexicons, rules = (ROLE_PHRASES, ROLE_PREDICATES, ROLE_NOUNS), ROLE_RULES
     pairs = [(value, phrase) for lexicon in lexicons for value, phrases in lexicon.items() for phrase in phrases]
-    pairs += [(value, w) for value, words in rules for w in words if " " in w or len(w) >= 5]
+    negated_only = set(_TABLES.get("negative_polarity", ()))
+    stated = [(value, w) for value, words in rules for w in words if w not in negated_only]
+    pairs += [(value, w) for value, w in stated if " " in w or len(w) >= 5]
     feats, lengths = encoder.encode_arrays([phrase for _, phrase in pairs])
     return [value for value, _ in pairs], _mean_unit(feats, lengths)
 
