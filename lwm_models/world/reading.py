@@ -140,7 +140,10 @@ def ungrounded_note(
     note = f"the world model reads {said}, not on this board ({', '.join(board)})"
     taken = [(i, grounded[i]) for i, _ in off if grounded and grounded[i] is not None and grounded[i] in board]
     if taken:
-        as_ = " and ".join(f'"{_short(descriptions[i])}" as about the {g}' for i, g in taken)
+        if len(off) == 1:  # the description was just quoted
+            as_ = f"it as about the {taken[0][1]}"
+        else:
+            as_ = " and ".join(f'"{_short(descriptions[i])}" as about the {g}' for i, g in taken)
         note += f"; it takes {as_}, the one entity on the board no other description names"
     return note
 
