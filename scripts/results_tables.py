@@ -227,7 +227,7 @@ def parser(base: str) -> list[str]:
         "PATH/text_train.json": "text_train.json (tuned on)",
         "PATH/text_val.json": "text_val.json (never tuned on)",
         "stress tune": "stress set, tuning part (tuned on)",
-        "stress dev": "stress set, dev part (never tuned on)",
+        "stress dev": "stress set, dev part (its phrasings tuned on since 2026-11-28)",
         "stress heldout": "stress set, held-out part (never tuned on)",
     }
     lines = ["| descriptions | how many | identity | movement | role |", "|---|---|---|---|---|"]
