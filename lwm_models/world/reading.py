@@ -138,13 +138,11 @@ def ungrounded_note(
         return None
     said = " and ".join(f'"{_short(descriptions[i])}" as about the {r}' for i, r in off)
     note = f"the world model reads {said}, not on this board ({', '.join(board)})"
-    taken = [(i, grounded[i]) for i, _ in off if grounded and grounded[i] is not None and grounded[i] in board]
+    # Grounding takes a description only when it is the one off the board (ground_words), so "it"
+    # is the description just quoted.
+    taken = [grounded[i] for i, _ in off if grounded and grounded[i] in board]
     if taken:
-        if len(off) == 1:  # the description was just quoted
-            as_ = f"it as about the {taken[0][1]}"
-        else:
-            as_ = " and ".join(f'"{_short(descriptions[i])}" as about the {g}' for i, g in taken)
-        note += f"; it takes {as_}, the one entity on the board no other description names"
+        note += f"; it takes it as about the {taken[0]}, the one entity on the board no other description names"
     return note
 
 
