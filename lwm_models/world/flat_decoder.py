@@ -107,12 +107,16 @@ class _Step(nn.Module):
         id_table: torch.Tensor | None,
         k_cache: torch.Tensor,
         v_cache: torch.Tensor,
+        count: torch.Tensor | None = None,
     ) -> torch.Tensor:
         """Final hidden states [A, n, H] of tokens [A, n] of cache rows `rows` [A], placed at each
-        row's length (`lengths`: every row's); writes their keys and values there."""
+        row's length (`lengths`: every row's); writes their keys and values there. `count` [A]: how
+        many of each row's tokens are real; the rest is padding, left out of the per-token layers
+        (its hidden states are zero, its keys and values are never read)."""
         a, n = tokens.shape
         positions = lengths.index_select(0, rows)[:, None] + torch.arange(n)[None, :]
-        width = int(positions[:, -1].max()) + 1
+        last = positions[:, -1] if count is None else positions[:, 0] + count - 1
+        width = int(last.max()) + 1  # the columns any real token sees
         h, kvh, d = self.hidden, self.kv_heads, self.head_dim
         group = self.heads // kvh
         slot = positions % self.block
@@ -132,12 +136,24 @@ class _Step(nn.Module):
         slots = (rows[:, None, None] * kvh + torch.arange(kvh)[None, :, None]) * cap + positions[:, None, :]
         slots = slots.reshape(-1)
         everyone = a == k_cache.shape[1]
+        # The per-token layers run on the real tokens only, packed [T, H]; the attention on [A, n].
+        keep: torch.Tensor | None = None
+        if count is not None:
+            real = (torch.arange(n)[None, :] < count[:, None]).view(-1)
+            if not bool(real.all()):
+                keep = real.nonzero().squeeze(1)
+        x = x.view(a * n, h)
+        if keep is not None:
+            x = x.index_select(0, keep)
         for i in range(len(self.qkv_w)):
             y = F.layer_norm(x, [h], self.ln1_w[i], self.ln1_b[i], self.eps)
-            q, k, v = F.linear(y, self.qkv_w[i], self.qkv_b[i]).split([h, kvh * d, kvh * d], dim=-1)
-            q = q.view(a, n, self.heads, d).transpose(1, 2)
-            k = k.view(a, n, kvh, d).transpose(1, 2)
-            v = v.view(a, n, kvh, d).transpose(1, 2)
+            qkv = F.linear(y, self.qkv_w[i], self.qkv_b[i])
+            if keep is not None:
+                qkv = torch.zeros(a * n, qkv.shape[1]).index_copy_(0, keep, qkv)
+            q, k, v = qkv.view(a, n, -1).split([h, kvh * d, kvh * d], dim=-1)
+            q = q.reshape(a, n, self.heads, d).transpose(1, 2)
+            k = k.reshape(a, n, kvh, d).transpose(1, 2)
+            v = v.reshape(a, n, kvh, d).transpose(1, 2)
             kc, vc = k_cache[i], v_cache[i]
             kc.view(-1, d).index_copy_(0, slots, k.reshape(-1, d))
             vc.view(-1, d).index_copy_(0, slots, v.reshape(-1, d))
@@ -146,13 +162,18 @@ class _Step(nn.Module):
             else:
                 keys, values = kc[:, :, :width].index_select(0, rows), vc[:, :, :width].index_select(0, rows)
             qg = q.reshape(a, kvh, group * n, d)
-            scores = (qg @ keys.transpose(-1, -2)) * self.scale
-            scores = (scores.view(a, kvh, group, n, width) + bias).view(a, kvh, group * n, width)
-            att = (torch.softmax(scores, dim=-1) @ values).reshape(a, self.heads, n, d)
-            x = x + F.linear(att.transpose(1, 2).reshape(a, n, h), self.proj_w[i], self.proj_b[i])
+            scores = ((qg @ keys.transpose(-1, -2)) * self.scale).view(a, kvh, group, n, width) + bias
+            att = (torch.softmax(scores.view(a, kvh, group * n, width), dim=-1) @ values).reshape(a, self.heads, n, d)
+            att = att.transpose(1, 2).reshape(a * n, h)
+            if keep is not None:
+                att = att.index_select(0, keep)
+            x = x + F.linear(att, self.proj_w[i], self.proj_b[i])
             y = F.layer_norm(x, [h], self.ln2_w[i], self.ln2_b[i], self.eps)
             x = x + F.linear(F.gelu(F.linear(y, self.fc_w[i], self.fc_b[i])), self.out_w[i], self.out_b[i])
-        return F.layer_norm(x, [h], self.lnf_w, self.lnf_b, self.eps)
+        x = F.layer_norm(x, [h], self.lnf_w, self.lnf_b, self.eps)
+        if keep is not None:
+            x = torch.zeros(a * n, h).index_copy_(0, keep, x)
+        return x.view(a, n, h)
 
 
 class FlatDecoder:

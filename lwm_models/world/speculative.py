@@ -129,9 +129,10 @@ class FlatDecoderBatch(DecoderBatch):
             available = lanes()
             groups = _groups(b, available)
             if len(groups) == 1:
-                self.calls += self.speculator.run(everyone, *state, *conditioning, self.lookahead)
+                threads = torch.get_num_threads()
+                self.calls += self.speculator.run(everyone, *state, *conditioning, self.lookahead, threads)
             else:
-                work = [(self.speculator.run, (rows, *state, *conditioning, self.lookahead)) for rows in groups]
+                work = [(self.speculator.run, (rows, *state, *conditioning, self.lookahead, 1)) for rows in groups]
                 self.calls += max(available.run(work))
         else:  # the rules are Python: what they allow is computed before each call
             rows, calls = everyone, 0
@@ -155,7 +156,7 @@ class FlatDecoderBatch(DecoderBatch):
         self.last_reward = self.last_reward[idx]
 
     def _lookahead(self, rows: int, call: int) -> int:
-        return _lookahead(rows, call) if self.lookahead < 0 else self.lookahead
+        return _lookahead(rows, call, torch.get_num_threads()) if self.lookahead < 0 else self.lookahead
 
     def _allowed(self, rules: StepRules, block: torch.Tensor, rows: torch.Tensor) -> torch.Tensor:
         """What the rules allow at each of the 14 slots of rows `rows` [A, 14, 37] (reward and done
@@ -180,17 +181,18 @@ def _groups(rows: int, available: Lanes | None) -> list[torch.Tensor]:
     return [torch.arange(rows * i // count, rows * (i + 1) // count) for i in range(count)]
 
 
-def _lookahead(rows: int, call: int) -> int:
-    """Draft tokens a call feeds per row when `rows` rows take part, in the step's call number
-    `call` (0: the first). A call over one row costs about the same for 1 token or 15 (dispatch,
-    not arithmetic), so a lone row feeds its whole draft; over many rows every padded or rejected
-    token is arithmetic. A step's first draft (the last observation) is wrong somewhere in most
-    rows, so the first call feeds a few tokens; a later call's draft is what the call before it
-    sampled, mostly right, so up to 32 rows feed the rest of the block. Above 32 rows a call is
-    arithmetic-bound and feeding 3 throughout was fastest (benchmarks/imagination.py, docs/speed.md)."""
+def _lookahead(rows: int, call: int, threads: int) -> int:
+    """Draft tokens a call feeds per row when `rows` rows take part on `threads` intra-op threads,
+    in the step's call number `call` (0: the first). A call over one row costs about the same for 1
+    token or 15 (dispatch, not arithmetic), so a lone row feeds its whole draft; over many rows
+    every rejected token is arithmetic. A step's first draft (the last observation) is wrong
+    somewhere in most rows, so the first call feeds a few tokens; a later call's draft is what the
+    call before it sampled, mostly right, so up to 16 rows a thread feed the rest of the block.
+    Above that a call is arithmetic-bound and feeding 3 throughout was fastest, on 2 threads or on a
+    lane's one (benchmarks/imagination.py, docs/speed.md)."""
     if rows <= 4:
         return 13  # the whole draft (FED - 2; TorchScript reads no module constants)
-    if rows > 32:
+    if rows > 16 * threads:
         return 3
     return 5 if call == 0 else 13
 
@@ -234,7 +236,8 @@ class _Speculator(nn.Module):
         sampling."""
         tokens, count = _feed(stream, fed, rows, lookahead)
         table = None if id_table is None else id_table.index_select(0, rows)
-        h = self.decoder(tokens, rows, lengths, table, k_cache, v_cache)
+        # A lone row is never padded: its call skips the packing's bookkeeping.
+        h = self.decoder(tokens, rows, lengths, table, k_cache, v_cache, count if rows.shape[0] > 1 else None)
         return _decide(
             h, rows, count, fed, known, block, probs, stream, lengths, uniforms, temperature, self.heads, allowed
         )
@@ -255,14 +258,15 @@ class _Speculator(nn.Module):
         k_cache: torch.Tensor,
         v_cache: torch.Tensor,
         lookahead: int,
+        threads: int,
     ) -> int:
         """A whole unconstrained step of the rows `rows`: calls until each has sampled its block;
         returns how many calls it took. `lookahead` < 0: by the rows in each call and its number
-        (`_lookahead`). Groups of rows may run at once on other threads (lanes.py): each writes only
-        its own rows of the step's state and the cache."""
+        (`_lookahead`) on `threads` intra-op threads (a lane has one). Groups of rows may run at once
+        on other threads (lanes.py): each writes only its own rows of the step's state and the cache."""
         calls = 0
         while rows.shape[0] > 0:
-            ahead = _lookahead(rows.shape[0], calls) if lookahead < 0 else lookahead
+            ahead = _lookahead(rows.shape[0], calls, threads) if lookahead < 0 else lookahead
             rows = self.forward(
                 stream,
                 fed,
