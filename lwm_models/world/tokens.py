@@ -54,18 +54,30 @@ def obs_to_tokens(compact: np.ndarray) -> np.ndarray:
     return tokens.reshape(*compact.shape[:-2], OBS_TOKENS)
 
 
+def _slot_values() -> np.ndarray:
+    """[3, OBS_VOCAB]: what each token means in an id, row and column slot (clipped into range;
+    an id token out of the ids' range is 0, an empty channel)."""
+    v = np.arange(OBS_VOCAB)
+    ids = np.where(v < NUM_IDS, v, 0)
+    return np.stack([ids, np.clip(v - ROW_OFFSET, 0, GRID - 1), np.clip(v - COL_OFFSET, 0, GRID - 1)]).astype(np.uint8)
+
+
+_SLOT_VALUES = _slot_values()
+
+
 def tokens_to_obs(tokens: np.ndarray) -> np.ndarray:
     """[..., 12] observation tokens -> compact observations [..., 4, 3].
 
     Tokens out of their slot's range (a model can sample a row token where an id belongs) are
-    clipped into range; an id of 0 empties the channel whatever its row and column say.
+    clipped into range; an id of 0 empties the channel whatever its row and column say. (A table
+    lookup: imagination calls this at every step, where numpy's per-call cost dominates.)
     """
-    tokens = np.asarray(tokens, dtype=np.int64)
+    tokens = np.asarray(tokens)
     if tokens.shape[-1] != OBS_TOKENS:
         raise ShapeError(f"observation tokens end in {OBS_TOKENS}, got {tokens.shape}")
-    t = tokens.reshape(*tokens.shape[:-1], NUM_CHANNELS, 3)
-    ids = np.where((t[..., 0] >= 0) & (t[..., 0] < NUM_IDS), t[..., 0], 0)
-    rows = np.clip(t[..., 1] - ROW_OFFSET, 0, GRID - 1)
-    cols = np.clip(t[..., 2] - COL_OFFSET, 0, GRID - 1)
-    out = np.stack([ids, np.where(ids > 0, rows, 0), np.where(ids > 0, cols, 0)], axis=-1)
-    return out.astype(np.uint8)
+    t = tokens.reshape(*tokens.shape[:-1], NUM_CHANNELS, 3).astype(np.int64, copy=False)
+    if t.size and (t.min() < 0 or t.max() >= OBS_VOCAB):
+        t = np.clip(t, 0, OBS_VOCAB - 1)  # below or above every slot's range: its first or last value
+    out = _SLOT_VALUES[np.arange(3), t]
+    out[..., 1:] *= out[..., :1] > 0
+    return out
