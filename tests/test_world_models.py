@@ -48,6 +48,16 @@ def test_tokens_round_trip_exactly(episodes):
     assert obs_to_tokens(empty).tolist() == [0, 17, 27] * 4
 
 
+def test_tokens_out_of_their_slot_range_are_clipped_and_id_0_empties_a_channel():
+    # A model may sample any observation token at any slot: an id slot holding a row token, a row
+    # slot holding an id, and (from a caller) values below or above every vocabulary.
+    tokens = np.array([[20, 3, 40, 5, 30, 20, -3, 18, 28, 16, 26, 99]])
+    # channel 0: id 20 is no id -> empty; 1: id 5, row 30-17 clipped to 9, column 20-27 clipped to 0;
+    # 2: id -3 -> empty; 3: id 16, row 26-17 = 9, column 99 -> 9
+    assert tokens_to_obs(tokens).tolist() == [[[0, 0, 0], [5, 9, 0], [0, 0, 0], [16, 9, 9]]]
+    assert tokens_to_obs(tokens).dtype == np.uint8
+
+
 def test_reward_labels():
     assert reward_label(np.array([-1.0, 0.0, 0.5, 1.0])).tolist() == [0, 2, 3, 4]
     with pytest.raises(ValueError):
