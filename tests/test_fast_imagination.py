@@ -1,8 +1,9 @@
 """The fast decoding paths of imagination (world/decoding.py) against the reference path: same seed,
 same starts, same tokens, with the shipped EMMA-LWM and Observational checkpoints.
 
-The flat path runs the reference's ops in the same order and must match it bit for bit. The
-speculative path computes a token's distribution in calls over several tokens, so its
+The flat decoder runs the reference's ops in the same order and must give its hidden states bit for
+bit. The fast paths sample with the three output heads stacked per slot (batched matmuls) and the
+speculative path computes a token's distribution in calls over several tokens, so their
 probabilities may differ by rounding; the bound documented in world/speculative.py and
 docs/speed.md is checked here (PROB_BOUND), and the sampled tokens must be identical.
 """
@@ -21,12 +22,13 @@ from lwm_models.world.checkpoint import load_checkpoint
 from lwm_models.world.continuous import ContinuousBatch, OneShot
 from lwm_models.world.decoding import default_decoding, make_decoder_batch
 from lwm_models.world.flat_decoder import FlatDecoder
-from lwm_models.world.imagine import DecoderBatch, StepwiseImagination, condition_rows, imagine
+from lwm_models.world.imagine import DecoderBatch, StepwiseImagination, board_of, condition_rows, imagine
 from lwm_models.world.registry import PRESETS, build_model
 from lwm_models.world.shipped import shipped_checkpoint
 from lwm_models.world.speculative import FlatDecoderBatch
+from lwm_models.world.tokens import BLOCK, DUMMY_ACTION, obs_to_tokens
 
-PROB_BOUND = 1e-5  # the largest difference of a token's probability, speculative vs reference
+PROB_BOUND = 1e-5  # the largest difference of a token's probability, a fast path vs reference
 STEPS = 12
 
 
@@ -80,7 +82,7 @@ def test_fast_paths_sample_the_reference_tokens(shipped, starts, size, constrain
     flat = run(model, manual, first, "flat", constrained)
     fast = run(model, manual, first, "speculative", constrained)
     assert_same_tokens(flat, reference)
-    np.testing.assert_array_equal(flat.token_probs, reference.token_probs)  # bit for bit
+    np.testing.assert_allclose(flat.token_probs, reference.token_probs, rtol=0, atol=PROB_BOUND)
     assert_same_tokens(fast, reference)
     np.testing.assert_allclose(fast.token_probs, reference.token_probs, rtol=0, atol=PROB_BOUND)
 
@@ -189,6 +191,32 @@ def test_the_default_is_speculative_and_the_reference_stays_selectable(shipped, 
 def test_cross_attention_falls_back_to_the_reference_path():
     model = build_model("standard", PRESETS["tiny"]).eval()
     assert type(make_decoder_batch(model, "speculative")) is DecoderBatch
+
+
+def test_the_flat_decoder_gives_the_reference_hidden_states_bit_for_bit(shipped, starts):
+    # The first block in one call, then a token per call, as the flat path feeds them.
+    model, manual = shipped
+    n = len(starts)
+    cond = condition_rows(model.condition_on(model.on_board(manual, board_of(starts))), n)
+    reference_cache, flat = model.new_cache(n), FlatDecoder.for_model(model)
+    rows = flat.new_cache(n)
+    first = run_first_block(starts)
+    later = torch.from_numpy(np.concatenate([[0, 1], obs_to_tokens(starts[0]), [2, 0, 3]]))[None].repeat(n, 1)
+    with torch.inference_mode():
+        for tokens in [first] + [later[:, i : i + 1] for i in range(later.shape[1])]:
+            reference = model.hidden_states(tokens, cond, reference_cache)
+            mine = flat(tokens, rows, cond.id_table)
+            rows.lengths += tokens.shape[1]
+            assert torch.equal(mine, reference)
+
+
+def run_first_block(starts: np.ndarray) -> torch.Tensor:
+    """The first block of each start [n, 14]: the dummy action, the observation, reward label 2."""
+    block = np.zeros((len(starts), BLOCK - 1), dtype=np.int64)
+    block[:, 0] = DUMMY_ACTION
+    block[:, 1:13] = obs_to_tokens(starts)
+    block[:, -1] = 2
+    return torch.from_numpy(block)
 
 
 def test_the_flat_decoder_follows_the_weights():

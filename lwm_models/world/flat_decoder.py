@@ -130,12 +130,7 @@ class _Step(nn.Module):
         x = x + F.embedding(positions.clamp(max=self.pos_emb.shape[0] - 1), self.pos_emb)
         # A query sees the columns up to its own position (rows are left-aligned).
         visible = torch.arange(width)[None, None, :] <= positions[:, :, None]
-        bias = torch.zeros(a, n, width).masked_fill_(~visible, float("-inf")).view(a, 1, 1, n, width)
-        cap = k_cache.shape[3]
-        # Where each new key goes in the cache viewed as [layers-slice rows * kv_heads * cap, d].
-        slots = (rows[:, None, None] * kvh + torch.arange(kvh)[None, :, None]) * cap + positions[:, None, :]
-        slots = slots.reshape(-1)
-        everyone = a == k_cache.shape[1]
+        bias = torch.where(visible, 0.0, float("-inf")).view(a, 1, n, 1, width)
         # The per-token layers run on the real tokens only, packed [T, H]; the attention on [A, n].
         keep: torch.Tensor | None = None
         if count is not None:
@@ -143,28 +138,32 @@ class _Step(nn.Module):
             if not bool(real.all()):
                 keep = real.nonzero().squeeze(1)
         x = x.view(a * n, h)
+        at, owner = positions.reshape(-1), rows[:, None].expand(a, n).reshape(-1)
         if keep is not None:
-            x = x.index_select(0, keep)
+            x, at, owner = x.index_select(0, keep), at.index_select(0, keep), owner.index_select(0, keep)
+        # Where each new key goes in the cache viewed as [rows * kv_heads * capacity, d], in the
+        # (token, kv head) order of the projection's output.
+        slots = ((owner[:, None] * kvh + torch.arange(kvh)[None, :]) * k_cache.shape[3] + at[:, None]).view(-1)
+        everyone = a == k_cache.shape[1]
         for i in range(len(self.qkv_w)):
             y = F.layer_norm(x, [h], self.ln1_w[i], self.ln1_b[i], self.eps)
             qkv = F.linear(y, self.qkv_w[i], self.qkv_b[i])
-            if keep is not None:
-                qkv = torch.zeros(a * n, qkv.shape[1]).index_copy_(0, keep, qkv)
-            q, k, v = qkv.view(a, n, -1).split([h, kvh * d, kvh * d], dim=-1)
-            q = q.reshape(a, n, self.heads, d).transpose(1, 2)
-            k = k.reshape(a, n, kvh, d).transpose(1, 2)
-            v = v.reshape(a, n, kvh, d).transpose(1, 2)
             kc, vc = k_cache[i], v_cache[i]
-            kc.view(-1, d).index_copy_(0, slots, k.reshape(-1, d))
-            vc.view(-1, d).index_copy_(0, slots, v.reshape(-1, d))
+            kc.view(-1, d).index_copy_(0, slots, qkv[:, h : h + kvh * d].reshape(-1, d))
+            vc.view(-1, d).index_copy_(0, slots, qkv[:, h + kvh * d :].reshape(-1, d))
+            q = qkv[:, :h]
+            if keep is not None:
+                q = torch.zeros(a * n, h).index_copy_(0, keep, q)
+            # Rows of one matmul: a kv head's query heads for each token, (token, head) within a
+            # row; with one kv head that is the projection's own layout.
+            qg = q.reshape(a, n, kvh, group, d).permute(0, 2, 1, 3, 4).reshape(a, kvh, n * group, d)
             if everyone:  # rows is arange: read the cache in place
                 keys, values = kc[:, :, :width], vc[:, :, :width]
             else:
                 keys, values = kc[:, :, :width].index_select(0, rows), vc[:, :, :width].index_select(0, rows)
-            qg = q.reshape(a, kvh, group * n, d)
-            scores = ((qg @ keys.transpose(-1, -2)) * self.scale).view(a, kvh, group, n, width) + bias
-            att = (torch.softmax(scores.view(a, kvh, group * n, width), dim=-1) @ values).reshape(a, self.heads, n, d)
-            att = att.transpose(1, 2).reshape(a * n, h)
+            scores = ((qg @ keys.transpose(-1, -2)) * self.scale).view(a, kvh, n, group, width) + bias
+            att = torch.softmax(scores.view(a, kvh, n * group, width), dim=-1) @ values
+            att = att.view(a, kvh, n, group, d).permute(0, 2, 1, 3, 4).reshape(a * n, h)
             if keep is not None:
                 att = att.index_select(0, keep)
             x = x + F.linear(att, self.proj_w[i], self.proj_b[i])

@@ -24,7 +24,8 @@ row, but each call carries only the rows still sampling.
 
 Exactness: each token is drawn from the model's distribution given the true tokens before it, with
 the same uniform number, so the tokens are those of the reference path up to floating-point
-rounding (a call over several tokens runs matmuls of other shapes). That rounding moved
+rounding (a call over several tokens runs matmuls of other shapes, and the output heads run
+stacked per slot, `_SlotHeads`). That rounding moved
 probabilities by at most ~1e-6 in tests/test_fast_imagination.py; a token can differ only if its
 uniform number falls within that distance of a boundary of the cumulative distribution.
 """
@@ -32,7 +33,6 @@ uniform number falls within that distance of a boundary of the cumulative distri
 from __future__ import annotations
 
 import torch
-import torch.nn.functional as F
 from torch import nn
 
 from ..messenger.constants import ACTION_DELTAS, GRID, NUM_ACTIONS
@@ -205,10 +205,7 @@ class _Speculator(nn.Module):
     def __init__(self, model: WorldModel) -> None:
         super().__init__()
         self.decoder = _Step(model)
-        heads: list[torch.Tensor] = []
-        for head_ in (model.obs_head, model.reward_head, model.done_head):
-            heads += [head_[0].weight, head_[0].bias, head_[2].weight, head_[2].bias]
-        self.heads = [w.detach().clone() for w in heads]
+        self.heads = _SlotHeads(model.obs_head, model.reward_head, model.done_head)
 
     @staticmethod
     def scripted(model: WorldModel) -> torch.jit.ScriptModule:
@@ -302,28 +299,52 @@ def _feed(
     return tokens, count
 
 
-def _sample_slots(
-    hs: torch.Tensor,
-    w1: torch.Tensor,
-    b1: torch.Tensor,
-    w2: torch.Tensor,
-    b2: torch.Tensor,
-    temperature: torch.Tensor,
-    u: torch.Tensor,
-    allowed: torch.Tensor | None,
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """Tokens [A, k] from the hidden states [A, k, H] that predict them, as `DecoderBatch._sample` draws
-    each: the first token whose cumulative probability reaches the row's uniform number (under the
-    allowed ones if constrained), and the model's unrestricted probability of it."""
-    logits = F.linear(torch.relu(F.linear(hs, w1, b1)), w2, b2).float() / temperature[:, None, None]
-    p_all = torch.softmax(logits, dim=-1)
-    draw = p_all
-    if allowed is not None:
-        draw = torch.softmax(logits.masked_fill(~allowed, float("-inf")), dim=-1)
-    token = (draw.cumsum(-1) < u[:, :, None]).sum(-1).clamp_(max=draw.shape[-1] - 1)
-    if allowed is not None:
-        token = _allowed_at_or_before(allowed, token)
-    return token, p_all.gather(2, token[:, :, None]).squeeze(2)
+class _SlotHeads(nn.Module):
+    """The three output heads (observation tokens, reward, done) as one head per slot of the
+    block: slot k's weights stacked at k, the reward's and done's logits padded to the observation
+    vocabulary with -inf (probability 0). A call samples any range of slots with two batched
+    matmuls instead of a pair per head and their bookkeeping."""
+
+    def __init__(self, obs_head: nn.Sequential, reward_head: nn.Sequential, done_head: nn.Sequential) -> None:
+        super().__init__()
+        heads = [obs_head] * OBS_TOKENS + [reward_head, done_head]
+        hidden = obs_head[0].in_features
+        self.w1 = torch.stack([h[0].weight.detach().t() for h in heads])  # [14, H, H]: x @ w1
+        self.b1 = torch.stack([h[0].bias.detach()[None, :] for h in heads])  # [14, 1, H]
+        self.w2 = torch.zeros(STEP_TOKENS, hidden, OBS_VOCAB)
+        self.b2 = torch.full((STEP_TOKENS, 1, OBS_VOCAB), float("-inf"))
+        for k, h in enumerate(heads):
+            vocab = h[2].out_features
+            self.w2[k, :, :vocab] = h[2].weight.detach().t()
+            self.b2[k, 0, :vocab] = h[2].bias.detach()
+        self.last = torch.tensor([h[2].out_features - 1 for h in heads])  # each slot's last token
+
+    def forward(
+        self,
+        hs: torch.Tensor,
+        first: int,
+        temperature: torch.Tensor,
+        u: torch.Tensor,
+        allowed: torch.Tensor | None,
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Tokens [A, k] of slots first..first+k-1 from the hidden states [A, k, H] that predict
+        them, as `DecoderBatch._sample` draws each: the first token whose cumulative probability
+        reaches the row's uniform number (under the allowed ones if constrained), and the model's
+        unrestricted probability of it."""
+        k = hs.shape[1]
+        w1, b1 = self.w1[first : first + k], self.b1[first : first + k]
+        w2, b2 = self.w2[first : first + k], self.b2[first : first + k]
+        hidden = torch.relu(torch.baddbmm(b1, hs.transpose(0, 1), w1))
+        logits = torch.baddbmm(b2, hidden, w2).transpose(0, 1) / temperature[:, None, None]
+        p_all = torch.softmax(logits, dim=-1)
+        draw = p_all
+        if allowed is not None:
+            draw = torch.softmax(logits.masked_fill(~allowed, float("-inf")), dim=-1)
+        # Clamped to the slot's vocabulary: rounding can leave the last cumulative value under 1.
+        token = torch.minimum((draw.cumsum(-1) < u[:, :, None]).sum(-1), self.last[first : first + k])
+        if allowed is not None:
+            token = _allowed_at_or_before(allowed, token)
+        return token, p_all.gather(2, token[:, :, None]).squeeze(2)
 
 
 def _decide(
@@ -338,7 +359,7 @@ def _decide(
     lengths: torch.Tensor,
     uniforms: torch.Tensor,
     temperature: torch.Tensor,
-    heads: list[torch.Tensor],
+    heads: _SlotHeads,
     allowed: torch.Tensor | None,
 ) -> torch.Tensor:
     """After a call of rows `rows` (hidden states h [A, n, H] of the `count` tokens each fed):
@@ -355,20 +376,9 @@ def _decide(
     m = torch.arange(first, top + 1)
     q = (m[None, :] + 1 - c[:, None]).clamp(0, h.shape[1] - 1)
     grid = h.gather(1, q[:, :, None].expand(-1, -1, hidden))
-    u = uniforms.index_select(0, rows)
-    temp = temperature.index_select(0, rows)
-    toks: list[torch.Tensor] = []
-    ps: list[torch.Tensor] = []
-    # Slots 0..11 use the observation head, 12 the reward head, 13 the done head.
-    for i, (lo, hi, vocab) in enumerate([(0, 12, 37), (12, 13, 5), (13, 14, 2)]):
-        lo, hi = max(lo, first), min(hi, top + 1)
-        if lo < hi:
-            mask = None if allowed is None else allowed[:, lo:hi, :vocab]
-            w1, b1, w2, b2 = heads[4 * i], heads[4 * i + 1], heads[4 * i + 2], heads[4 * i + 3]
-            t, p = _sample_slots(grid[:, lo - first : hi - first], w1, b1, w2, b2, temp, u[:, lo:hi], mask)
-            toks.append(t)
-            ps.append(p)
-    tok, p = torch.cat(toks, 1), torch.cat(ps, 1)
+    u = uniforms.index_select(0, rows)[:, first : top + 1]
+    mask = None if allowed is None else allowed[:, first : top + 1]
+    tok, p = heads.forward(grid, first, temperature.index_select(0, rows), u, mask)
     # Each row's first token that differs from the draft (or its last predicted one) ends what
     # this call decided for it.
     mine = block.index_select(0, rows)[:, first : top + 1]
