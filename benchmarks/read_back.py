@@ -86,8 +86,10 @@ def score(model, encoder, ds: TrajectoryDataset, game_index: int, source: str, s
 
 
 def summarise(records: list[dict]) -> dict:
+    """Per model (in the order they first appear) and source (in SOURCES' order): the share of
+    games whose roles were read right, and of entities whose movement and description were."""
     out: dict = {}
-    for r in records:
+    for r in in_order(records):
         cell = out.setdefault(r["model"], {}).setdefault(
             r["source"], {"games": 0, "roles": 0, "movement": 0, "identity": 0}
         )
@@ -102,6 +104,13 @@ def summarise(records: list[dict]) -> dict:
             cell["movement"] = cell["movement"] / (3 * n)
             cell["identity"] = None if cell["identity"] is None else cell["identity"] / (3 * n)
     return out
+
+
+def in_order(records: list[dict]) -> list[dict]:
+    """The records by model (first appearance) and source (SOURCES' order), games in their order:
+    a run that re-measures one source puts its records back in place."""
+    models = list(dict.fromkeys(r["model"] for r in records))
+    return sorted(records, key=lambda r: (models.index(r["model"]), SOURCES.index(r["source"])))
 
 
 def table(summary: dict) -> str:
@@ -164,7 +173,7 @@ def main() -> int:
     }
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(summary, indent=2) + "\n")
-    args.out.with_suffix(".jsonl").write_text("".join(json.dumps(r) + "\n" for r in records))
+    args.out.with_suffix(".jsonl").write_text("".join(json.dumps(r) + "\n" for r in in_order(records)))
     print(table(summary["results"]))
     print(f"written to {args.out}")
     return 0
