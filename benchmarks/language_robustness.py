@@ -43,7 +43,7 @@ sys.path.insert(0, str(ROOT))
 
 from lwm_models.messenger.constants import ALL_TRIPLES  # noqa: E402
 from lwm_models.text.parser import parse_description  # noqa: E402
-from lwm_models.text.stress import manual_sources, source_pools  # noqa: E402
+from lwm_models.text.stress import dataset_source_problem, manual_sources, source_pools  # noqa: E402
 from lwm_models.world.checkpoint import load_checkpoint  # noqa: E402
 from lwm_models.world.evaluate import evaluate_model  # noqa: E402
 from lwm_models.world.frozen_text import FrozenTextEncoder  # noqa: E402
@@ -173,6 +173,8 @@ def main() -> int:
     ap.add_argument("--seed", type=int, default=0, help="seed of the re-drawn manuals and of the imagination")
     ap.add_argument("--out", type=Path, default=OUT, help="summary JSON; results already in it are kept and merged")
     args = ap.parse_args()
+    if problem := dataset_source_problem(args.data, SPLIT, args.sources):
+        raise SystemExit(problem)
     torch.set_num_threads(1)
     episodes = args.episodes or None
     settings = {

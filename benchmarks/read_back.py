@@ -42,7 +42,7 @@ from lwm_models.agent.table3 import TABLE3_GAMES, table3_games  # noqa: E402
 from lwm_models.agent.understood import SAID_OF  # noqa: E402
 from lwm_models.data.dataset import TrajectoryDataset  # noqa: E402
 from lwm_models.messenger.constants import IDENTITIES  # noqa: E402
-from lwm_models.text.stress import manual_sources, source_pools  # noqa: E402
+from lwm_models.text.stress import dataset_source_problem, manual_sources, source_pools  # noqa: E402
 from lwm_models.world.checkpoint import load_checkpoint  # noqa: E402
 from lwm_models.world.reading import read_identities  # noqa: E402
 
@@ -140,6 +140,8 @@ def main() -> int:
     )
     args = ap.parse_args()
     torch.set_num_threads(1)
+    if problem := dataset_source_problem(args.data, SPLIT, args.sources):
+        raise SystemExit(problem)
     ds = TrajectoryDataset(args.data, SPLIT)
     games = table3_games(len(ds.games), args.games)
     names = [spec.partition("=")[0] for spec in args.models]

@@ -136,7 +136,7 @@ def test_human_text_source(tmp_path):
     pools = DescriptionPools.from_files(files)
     index = generate_dataset(tmp_path, pools, max_games=3, train_episodes_per_game=2, text_source="human")
     ds = TrajectoryDataset(tmp_path, "newall-test")
-    assert index["text_source"] == "human" and len(ds.texts) > 0
+    assert index["text_source"] == "human" and len(ds.texts) > 0 and ds.human_written
     human = set()
     for f in files:
         data = json.loads(f.read_text())
@@ -146,3 +146,16 @@ def test_human_text_source(tmp_path):
                     human.update(lst)
     used = set(ds.texts)
     assert len(used & human) / len(used) > 0.8
+
+
+@pytest.mark.parametrize("benchmark", ["language_robustness.py", "read_back.py"])
+def test_benchmarks_refuse_the_generators_text_as_the_dataset(small, benchmark):
+    # A directory generated without --text-source holds the generator's descriptions: measured as
+    # "the dataset's", they would be the generator's text under the dataset's name.
+    out, _index = small
+    root = Path(__file__).resolve().parents[1]
+    argv = [sys.executable, str(root / "benchmarks" / benchmark), "--data", str(out), "--models", "observational"]
+    refused = subprocess.run([*argv, "--sources", "dataset"], capture_output=True, text=True, timeout=120)
+    assert refused.returncode != 0
+    assert "holds the generator's descriptions" in refused.stderr and "Traceback" not in refused.stderr
+    assert not TrajectoryDataset(out, "newall-test").human_written

@@ -260,6 +260,12 @@ class TrajectoryDataset:
     def __len__(self) -> int:
         return len(self.episode_games)
 
+    @property
+    def human_written(self) -> bool:
+        """Whether its manuals were drawn from human-written files (`lwm data generate --text-source`),
+        not from the project's generator."""
+        return self.index.get("text_source", "generated") != "generated"
+
     def lengths(self) -> np.ndarray:
         return np.diff(self.episode_offsets)
 
