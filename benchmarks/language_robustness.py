@@ -41,9 +41,10 @@ import torch
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from lwm_models.data.dataset import dataset_source_problem  # noqa: E402
 from lwm_models.messenger.constants import ALL_TRIPLES  # noqa: E402
 from lwm_models.text.parser import parse_description  # noqa: E402
-from lwm_models.text.stress import dataset_source_problem, manual_sources, source_pools  # noqa: E402
+from lwm_models.text.stress import manual_sources, source_pools  # noqa: E402
 from lwm_models.world.checkpoint import load_checkpoint  # noqa: E402
 from lwm_models.world.evaluate import evaluate_model  # noqa: E402
 from lwm_models.world.frozen_text import FrozenTextEncoder  # noqa: E402

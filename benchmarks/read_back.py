@@ -40,9 +40,9 @@ from lwm_models.agent.learning import start_observations  # noqa: E402
 from lwm_models.agent.roles import believe  # noqa: E402
 from lwm_models.agent.table3 import TABLE3_GAMES, table3_games  # noqa: E402
 from lwm_models.agent.understood import SAID_OF  # noqa: E402
-from lwm_models.data.dataset import TrajectoryDataset  # noqa: E402
+from lwm_models.data.dataset import TrajectoryDataset, dataset_source_problem  # noqa: E402
 from lwm_models.messenger.constants import IDENTITIES  # noqa: E402
-from lwm_models.text.stress import dataset_source_problem, manual_sources, source_pools  # noqa: E402
+from lwm_models.text.stress import manual_sources, source_pools  # noqa: E402
 from lwm_models.world.checkpoint import load_checkpoint  # noqa: E402
 from lwm_models.world.reading import read_identities  # noqa: E402
 

@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import json
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -289,3 +289,15 @@ class TrajectoryDataset:
 
     def returns(self) -> np.ndarray:
         return np.add.reduceat(np.asarray(self.rewards), np.asarray(self.episode_offsets[:-1]))
+
+
+def dataset_source_problem(data_dir: str | Path, split: str, sources: Sequence[str]) -> str | None:
+    """Why `sources` cannot be measured on `data_dir`, or None. "dataset" stands for the human-written
+    descriptions, and a directory generated without them (no `--text-source`) holds the generator's:
+    measured there, that source would be the generator's text under the dataset's name."""
+    if "dataset" not in sources or TrajectoryDataset(data_dir, split).human_written:
+        return None
+    return (
+        f"{data_dir} holds the generator's descriptions, not the dataset's human-written ones: generate it "
+        "with 'lwm data generate --text-source text_train.json text_val.json', or leave out the source 'dataset'"
+    )

@@ -15,12 +15,10 @@ which would break the pools' train/test disjointness if anyone trained on them.
 from __future__ import annotations
 
 import json
-from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
 
-from ..data.dataset import TrajectoryDataset
 from ..errors import LwmError
 from ..messenger.constants import ALL_TRIPLES, SPLITS, Triple
 from .pools import DescriptionPools, receiving_splits
@@ -94,18 +92,6 @@ def manual_sources(path: str | Path = STRESS_FILE) -> tuple[str, ...]:
     """Where a benchmark's manuals can come from: "dataset" (the dataset's own descriptions),
     "generated" (the project's generator), "stress:STYLE" (one style of the held-out part)."""
     return ("dataset", "generated", *(f"stress:{style}" for style in stress_styles(path)))
-
-
-def dataset_source_problem(data_dir: str | Path, split: str, sources: Sequence[str]) -> str | None:
-    """Why `sources` cannot be measured on `data_dir`, or None. "dataset" stands for the human-written
-    descriptions, and a directory generated without them (no `--text-source`) holds the generator's:
-    measured there, that source would be the generator's text under the dataset's name."""
-    if "dataset" not in sources or TrajectoryDataset(data_dir, split).human_written:
-        return None
-    return (
-        f"{data_dir} holds the generator's descriptions, not the dataset's human-written ones: generate it "
-        "with 'lwm data generate --text-source text_train.json text_val.json', or leave out the source 'dataset'"
-    )
 
 
 def source_pools(source: str, seed: int = 0) -> DescriptionPools | None:
