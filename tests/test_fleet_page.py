@@ -82,7 +82,9 @@ def test_one_manual_on_the_fleet_page_replans_every_agent(fleet, browser):  # no
     pages, tmp_path = fleet
     browser.get(pages["fleet_page"])
     wait = WebDriverWait(browser, 240, poll_frequency=0.5)
-    wait.until(lambda d: all("waits for your answer" in r[2] for r in rows(d).values()) and len(rows(d)) == 2)
+    # One read of the table per poll: two reads could see it empty (all() of nothing is true) and
+    # then filled, before any agent waits.
+    wait.until(lambda d: len(shown := rows(d)) == 2 and all("waits for your answer" in r[2] for r in shown.values()))
     first = rows(browser)
     assert all(r[4] == "v1" and "(manual v1)" in r[3] for r in first.values()), first
     shot(browser, tmp_path, "fleet_page_queue.png")
@@ -100,8 +102,13 @@ def test_one_manual_on_the_fleet_page_replans_every_agent(fleet, browser):  # no
     browser.find_element("id", "send").click()
     wait.until(lambda d: "manual taken for" in message.text)
     assert "agent1 (v2)" in message.text and "agent2 (v2)" in message.text, message.text
+
     # Both agents re-plan under the fleet's manual: each row's plan says version 2.
-    wait.until(lambda d: all("(manual v2)" in r[3] and r[4] == "v2" for r in rows(d).values()))
+    def replanned(d) -> bool:
+        shown = rows(d)
+        return len(shown) == 2 and all("(manual v2)" in r[3] and r[4] == "v2" for r in shown.values())
+
+    wait.until(replanned)
     shot(browser, tmp_path, "fleet_page_two_agents.png")
 
     # Each agent's link opens its own review page, with its plan under the new manual.
