@@ -26,7 +26,7 @@ from lwm_models.world.imagine import DecoderBatch, StepwiseImagination, board_of
 from lwm_models.world.registry import PRESETS, build_model
 from lwm_models.world.shipped import shipped_checkpoint
 from lwm_models.world.speculative import FlatDecoderBatch
-from lwm_models.world.tokens import BLOCK, DUMMY_ACTION, obs_to_tokens
+from lwm_models.world.tokens import first_block_tokens, obs_to_tokens
 
 PROB_BOUND = 1e-5  # the largest difference of a token's probability, a fast path vs reference
 STEPS = 12
@@ -200,7 +200,7 @@ def test_the_flat_decoder_gives_the_reference_hidden_states_bit_for_bit(shipped,
     cond = condition_rows(model.condition_on(model.on_board(manual, board_of(starts))), n)
     reference_cache, flat = model.new_cache(n), FlatDecoder.for_model(model)
     rows = flat.new_cache(n)
-    first = run_first_block(starts)
+    first = torch.from_numpy(first_block_tokens(starts))
     later = torch.from_numpy(np.concatenate([[0, 1], obs_to_tokens(starts[0]), [2, 0, 3]]))[None].repeat(n, 1)
     with torch.inference_mode():
         for tokens in [first] + [later[:, i : i + 1] for i in range(later.shape[1])]:
@@ -208,15 +208,6 @@ def test_the_flat_decoder_gives_the_reference_hidden_states_bit_for_bit(shipped,
             mine = flat(tokens, rows, cond.id_table)
             rows.lengths += tokens.shape[1]
             assert torch.equal(mine, reference)
-
-
-def run_first_block(starts: np.ndarray) -> torch.Tensor:
-    """The first block of each start [n, 14]: the dummy action, the observation, reward label 2."""
-    block = np.zeros((len(starts), BLOCK - 1), dtype=np.int64)
-    block[:, 0] = DUMMY_ACTION
-    block[:, 1:13] = obs_to_tokens(starts)
-    block[:, -1] = 2
-    return torch.from_numpy(block)
 
 
 def test_the_flat_decoder_follows_the_weights():

@@ -24,11 +24,9 @@ from .constraints import StepRules
 from .gpt import KVCache
 from .tokens import (
     BLOCK,
-    DUMMY_ACTION,
-    FIRST_REWARD_LABEL,
     OBS_TOKENS,
     REWARD_VALUES,
-    obs_to_tokens,
+    first_block_tokens,
     tokens_to_obs,
 )
 
@@ -140,11 +138,7 @@ class DecoderBatch:
         `constrained` (world/constraints.py). The first block is fed now except its done token,
         which is fed with the first action as every later block's is."""
         n = len(first)
-        block = np.zeros((n, BLOCK - 1), dtype=np.int64)
-        block[:, 0] = DUMMY_ACTION
-        block[:, 1 : 1 + OBS_TOKENS] = obs_to_tokens(first)
-        block[:, -1] = FIRST_REWARD_LABEL
-        tokens = torch.from_numpy(block)
+        tokens = torch.from_numpy(first_block_tokens(first))
         if self.cache is not None:
             self.cache.extend(self._first_block(tokens, cond))
         elif len(self):

@@ -54,6 +54,17 @@ def obs_to_tokens(compact: np.ndarray) -> np.ndarray:
     return tokens.reshape(*compact.shape[:-2], OBS_TOKENS)
 
 
+def first_block_tokens(first: np.ndarray) -> np.ndarray:
+    """The block imagination feeds first [n, 14] for start observations [n, 4, 3]: the dummy
+    action, the observation's tokens and the first reward label; its done token is fed with the
+    first action, as every later block's is."""
+    block = np.zeros((len(first), BLOCK - 1), dtype=np.int64)
+    block[:, 0] = DUMMY_ACTION
+    block[:, 1 : 1 + OBS_TOKENS] = obs_to_tokens(first)
+    block[:, -1] = FIRST_REWARD_LABEL
+    return block
+
+
 def _slot_values() -> np.ndarray:
     """[3, OBS_VOCAB]: what each token means in an id, row and column slot (clipped into range;
     an id token out of the ids' range is 0, an empty channel)."""
