@@ -249,17 +249,17 @@ class DecoderBatch:
         # (rounding again: a disallowed token of probability 0 must never be drawn).
         token = (draw.cumsum(-1) < u[:, None]).sum(-1).clamp_(max=draw.shape[-1] - 1)
         if allowed is not None:
-            token = _allowed_at_or_before(allowed, token)
+            token = allowed_at_or_before(allowed, token)
         return token, probs.gather(1, token[:, None]).squeeze(1)
 
 
-def _allowed_at_or_before(allowed: torch.Tensor, token: torch.Tensor) -> torch.Tensor:
-    """Each row's token if allowed, else the nearest allowed token below it, else the first allowed."""
-    vocab = torch.arange(allowed.shape[1])
-    below = allowed & (vocab[None, :] <= token[:, None])
-    last_below = torch.where(below, vocab, -1).amax(1)
-    first = allowed.float().argmax(1)
-    return torch.where(last_below >= 0, last_below, first)
+def allowed_at_or_before(allowed: torch.Tensor, token: torch.Tensor) -> torch.Tensor:
+    """Each token [...] if its mask [..., vocab] allows it, else the nearest allowed token below it,
+    else the first allowed (scripted by the speculative path too)."""
+    vocab = torch.arange(allowed.shape[-1])
+    below = allowed & (vocab <= token[..., None])
+    last_below = torch.where(below, vocab, -1).amax(-1)
+    return torch.where(last_below >= 0, last_below, allowed.float().argmax(-1))
 
 
 def _pad_steps(uniforms: torch.Tensor, steps: int) -> torch.Tensor:

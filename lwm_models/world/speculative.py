@@ -40,7 +40,7 @@ from ..messenger.constants import ACTION_DELTAS, GRID, NUM_ACTIONS
 from .base import WorldModel
 from .constraints import StepRules
 from .flat_decoder import FlatDecoder, RowCache, _Step, per_weights, scripted
-from .imagine import DecoderBatch
+from .imagine import DecoderBatch, allowed_at_or_before
 from .lanes import Lanes, lanes
 from .tokens import BLOCK, COL_OFFSET, FIRST_REWARD_LABEL, OBS_TOKENS, OBS_VOCAB, ROW_OFFSET
 
@@ -344,7 +344,7 @@ class _SlotHeads(nn.Module):
         # Clamped to the slot's vocabulary: rounding can leave the last cumulative value under 1.
         token = torch.minimum((draw.cumsum(-1) < u[:, :, None]).sum(-1), self.last[first : first + k])
         if allowed is not None:
-            token = _allowed_at_or_before(allowed, token)
+            token = allowed_at_or_before(allowed, token)
         return token, p_all.gather(2, token[:, :, None]).squeeze(2)
 
 
@@ -397,15 +397,6 @@ def _decide(
     fed.index_copy_(0, rows, now)
     known.index_copy_(0, rows, end + 1)
     return rows[end + 1 < 14]
-
-
-def _allowed_at_or_before(allowed: torch.Tensor, token: torch.Tensor) -> torch.Tensor:
-    """imagine._allowed_at_or_before over [..., vocab] masks: each token if allowed, else the
-    nearest allowed token below it, else the first allowed."""
-    vocab = torch.arange(allowed.shape[-1])
-    below = allowed & (vocab <= token[..., None])
-    last_below = torch.where(below, vocab, -1).amax(-1)
-    return torch.where(last_below >= 0, last_below, allowed.float().argmax(-1))
 
 
 __all__ = ["FlatDecoderBatch", "draft_block"]
