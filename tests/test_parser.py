@@ -24,8 +24,8 @@ VAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "messenger-texts
 def test_generated_descriptions_parse_back_to_their_triple():
     texts = {t: generate_descriptions(t) for t in ALL_TRIPLES}
     acc = parser_accuracy(texts)
-    assert acc["identity"] == 1.0
-    assert acc["movement"] > 0.95 and acc["role"] > 0.9, acc
+    # The project's own phrasings are read exactly: the demo's default manuals are generated.
+    assert (acc["identity"], acc["movement"], acc["role"]) == (1.0, 1.0, 1.0), acc
 
 
 @pytest.mark.parametrize(
@@ -84,6 +84,29 @@ def test_negations_and_free_form(text, expected):
     ],
 )
 def test_idioms(text, expected):
+    assert parse_description(text) == expected
+
+
+@pytest.mark.parametrize(
+    "text, expected",
+    [
+        # a negation's scope ends at a modal or a new predicate's verb
+        ("a salmon that never moves receives the message.", ("fish", "immovable", "goal")),
+        ("a crook that does not move will kill you on contact.", ("thief", "immovable", "enemy")),
+        ("the plane must never be touched and stays put.", ("airplane", "immovable", "enemy")),
+        # "non-moving" holds the chaser's cue "moving"
+        ("the non-moving thief is the most dangerous opponent.", ("thief", "immovable", "enemy")),
+        ("the enemy is the dog and it is moving farther away.", ("dog", "fleeing", "enemy")),
+        # "still" as an adverb and "remains" as a linking verb say nothing of movement
+        ("though the shark is fleeing, it is still a deadly opponent.", ("fish", "fleeing", "enemy")),
+        ("the queen escapes from you and remains the goal.", ("queen", "fleeing", "goal")),
+        ("the queen stays still and is the goal.", ("queen", "immovable", "goal")),
+        # being relocated is not moving by itself; relocating is moving
+        ("the ferry cannot be relocated and holds the message.", ("ship", "immovable", "message")),
+        ("the relocating hound is the goal.", ("dog", None, "goal")),
+    ],
+)
+def test_the_training_files_misreadings(text, expected):
     assert parse_description(text) == expected
 
 

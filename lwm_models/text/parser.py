@@ -74,9 +74,11 @@ _NEGATOR = re.compile(r"\b(not|never|no|nor|neither|nowhere)\b|n't\b")
 # Where a negation's scope ends: punctuation, a conjunction, or a verb that starts a new predicate.
 _SCOPE_END = re.compile(
     r"[.,;:!?()\u2014]|\b(but|and|so|while|yet|whereas|though|although|instead|rather|"
-    r"is|are|was|has|have|holds|carries|contains|possesses|bears|keeps)\b"
+    r"is|are|was|has|have|holds|carries|contains|possesses|bears|keeps|receives|will|must)\b"
 )
 _SCOPE_WORDS = 6
+# "still" as an adverb and "remains" as a linking verb, followed by what they qualify or link.
+_NOT_STILLNESS = re.compile(r"(?:still|remains?)\s+(?:a|an|the|is|are|be|of|your|its|has|have|holds|carries|very)\b")
 
 
 def _negated_spans(lowered: str) -> list[tuple[int, int]]:
@@ -191,6 +193,8 @@ def _decide(lowered: str, rules) -> tuple[str | None, list[str]]:
         for m in pattern.finditer(lowered):
             if lowered.startswith("less", m.end()):
                 continue  # "harmless", "aimless": the cue's opposite
+            if _NOT_STILLNESS.match(lowered, m.start()):
+                continue  # "it is still a deadly opponent", "remains the goal": no movement said
             if not _is_negated(spans, m.start()) or _NEGATIVE_POLARITY.match(lowered, m.start()):
                 return name, ruled_out
             negated = True
@@ -224,19 +228,6 @@ def parse_description(text: str, encoder=None) -> tuple[str | None, str | None, 
     """(identity, movement, role) as the parser reads them; None where it finds no cue (with an
     encoder, an embedding-space guess instead of None)."""
     return parse_identity(text, encoder), parse_movement(text, encoder), parse_role(text, encoder)
-
-
-def nearest_value(text: str, field: str, encoder) -> str | None:
-    """The movement (`field="movement"`) or role of the known phrase nearest to one of a
-    description's clauses in the encoder's space, whatever its keywords say: a second opinion.
-    Unlike the guess for an undecided field, negated clauses count ("it never moves" is a
-    movement)."""
-    clauses = [c.strip() for c in _CLAUSE.split(normalise(text)) if c and c.strip()]
-    if not clauses:
-        return None
-    values, protos = _value_prototypes(encoder, field)
-    feats, lengths = encoder.encode_arrays(clauses)
-    return values[int(np.argmax(_mean_unit(feats, lengths) @ protos.T)) % len(values)]
 
 
 def route_identity_id(text: str) -> int:

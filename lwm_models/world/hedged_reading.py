@@ -6,9 +6,8 @@ the text says it is deadly) imagines confidently wrong futures, worse than readi
 description is read twice:
 - by the world model (its description attention's key and value), and
 - by its words: the keyword parser's identity (the frozen encoder's nearest name where no keyword
-  names one), movement and role. A field no keyword rule decides stays open, and so does a
-  movement keyword the encoder's nearest movement phrase disagrees with ("non-moving" holds the
-  keyword "moving"). The triples that agree with what the words decide are the candidates.
+  names one), movement and role. A field no keyword rule decides stays open. The triples that
+  agree with what the words decide are the candidates.
 
 Each of the 108 triples has a prototype: the mean key and value the model reads from the
 project's generated descriptions of it (`fit_prototypes`, stored with the weights).
@@ -16,7 +15,8 @@ project's generated descriptions of it (`fit_prototypes`, stored with the weight
 `readings` (the rule served): a description is read one way, the model's own, when its words decide
 the movement and the role and the model's nearest prototype agrees, or when the reading lies within
 `stand_distance` of a prototype (as near as half of the dataset's training descriptions are read,
-`fit_stand_distance`: text the model reads in its own language). Otherwise every candidate is a
+`fit_stand_distance`: text the model reads in its own language) and the words do not decide the
+movement and the role against it. Otherwise every candidate is a
 reading (its prototype), the model's own reading standing for its nearest prototype with prior
 `OWN_WEIGHT` where the words allow it; where the words name another entity than the model reads,
 the model's entity stays a reading too (prior `OTHER_IDENTITY`). A manual's readings are the combinations of its
@@ -53,7 +53,7 @@ import numpy as np
 import torch
 
 from ..messenger.constants import ALL_TRIPLES, IDENTITIES, MOVEMENTS, NUM_IDS, ROLES
-from ..text.parser import nearest_value, parse_identity, parse_movement, parse_role
+from ..text.parser import parse_identity, parse_movement, parse_role
 from .base import Conditioning, WorldModel, WorldModelConfig, _targets_layout
 from .emma import EmmaLWM
 from .frozen_text import FrozenTextEncoder
@@ -78,14 +78,11 @@ def _name_encoder() -> FrozenTextEncoder:
 def words_code(text: str, encoder: FrozenTextEncoder | None = None) -> int:
     """What a description's words decide, as one int: identity id * 16 + (movement index + 1) * 4
     + (role index + 1); 0 marks a field left open (the identity is open only when no name is
-    near). A movement keyword counts only where the encoder's nearest movement phrase agrees
-    ("non-moving" holds the keyword "moving"). `encoder`: a loaded frozen encoder to share (its
-    text model, at the default length, so the answer does not depend on who asks)."""
+    near). `encoder`: a loaded frozen encoder to share (its text model, at the default length, so
+    the answer does not depend on who asks)."""
     encoder = _name_encoder() if encoder is None else encoder.keeping(NAME_TOKENS)
     identity = parse_identity(text, encoder)
     movement, role = parse_movement(text), parse_role(text)
-    if movement is not None and nearest_value(text, "movement", encoder) != movement:
-        movement = None
     return (
         IDENTITIES.get(identity, 0) * 16
         + (0 if movement is None else MOVEMENTS.index(movement) + 1) * 4
@@ -218,7 +215,8 @@ def readings(
     """keys, values [B, 3, W] as the model reads them, codes [B, 3] -> every way each manual may be
     read, with a prior. A description is read one way, the model's own, when the words decide its
     movement and role and the model's nearest prototype agrees, or when the reading lies within
-    `stand_distance` of a prototype; otherwise each triple the words allow is a reading (its
+    `stand_distance` of a prototype and the words do not decide movement and role against it;
+    otherwise each triple the words allow is a reading (its
     prototype), the model's own reading standing for its nearest prototype with prior `own_weight`
     where the words allow that one, the rest sharing what is left evenly. Where the words name
     another entity than the model's nearest prototype does, the readings the words allow with the
@@ -227,7 +225,8 @@ def readings(
     readings are the combinations of its descriptions' (the likeliest `max_readings`)."""
     closest, nearest, allowed, agree = _checked(keys, values, codes, proto_keys, proto_values)
     decided = ((codes // 4) % 4 > 0) & (codes % 4 > 0)
-    alone = (agree & decided) | (closest <= stand_distance)
+    # Nearness vouches for the model's language, not against words that state movement and role.
+    alone = (agree & decided) | ((closest <= stand_distance) & (agree | ~decided))
     own_among = agree & ~alone
     said, read = codes // 16, _TRIPLE_FIELDS.to(codes.device)[nearest, 0]  # identity ids [B, 3]
     other = (said > 0) & (said != read) & ~alone & (other_identity > 0)
