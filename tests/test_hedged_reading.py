@@ -345,18 +345,55 @@ def test_words_naming_an_entity_off_the_board_are_grounded_on_it():
     from lwm_models.messenger.constants import IDENTITIES
     from lwm_models.world.hedged_reading import ground_words
 
-    plane, ball, robot, queen = (IDENTITIES[n] for n in ("airplane", "ball", "robot", "queen"))
+    plane, ball, robot, queen, dog = (IDENTITIES[n] for n in ("airplane", "ball", "robot", "queen", "dog"))
     words = [words_code("the plane chases you and it is deadly."), words_code("the ball is the goal."),
              words_code("the queen has the message.")]  # fmt: skip
     codes = torch.tensor([words])
-    grounded = ground_words(codes, torch.tensor([[plane, ball, robot]]))
+
+    def sets(among):
+        return [sorted(torch.nonzero(a).flatten().tolist()) if not a.all() else "any" for a in among[0]]
+
+    grounded, among = ground_words(codes, torch.tensor([[plane, ball, robot]]))
     # the queen is not on the board; the robot is the one entity no other description names
-    assert (grounded // 16).tolist() == [[plane, ball, robot]]
+    assert (grounded // 16).tolist() == [[plane, ball, robot]] and sets(among) == ["any", "any", [robot]]
     assert torch.equal(grounded % 16, codes % 16)  # movement and role as the words say
-    # two descriptions off the board: which is which is open
-    assert (ground_words(codes, torch.tensor([[plane, 0, robot]])) // 16).tolist() == [[plane, 0, 0]]
+    # two descriptions off the board, two board entities left: each is one of them
+    grounded, among = ground_words(codes, torch.tensor([[plane, dog, robot]]))
+    assert (grounded // 16).tolist() == [[plane, 0, 0]] and sets(among) == ["any", [dog, robot], [dog, robot]]
+    # two descriptions naming the same board entity: one of them is about the entity no one names
+    twice = torch.tensor([[words[0], words[0], words[1]]])
+    grounded, among = ground_words(twice, torch.tensor([[plane, ball, robot]]))
+    assert (grounded // 16).tolist() == [[0, 0, ball]] and sets(among) == [[plane, robot], [plane, robot], "any"]
+    # more descriptions off the board than entities left: open, as any entity
+    grounded, among = ground_words(codes, torch.tensor([[plane, 0, robot]]))
+    assert (grounded // 16).tolist() == [[plane, 0, 0]] and sets(among) == ["any", "any", "any"]
     # every description on the board: unchanged
-    assert torch.equal(ground_words(codes, torch.tensor([[plane, ball, queen]])), codes)
+    grounded, among = ground_words(codes, torch.tensor([[plane, ball, queen]]))
+    assert torch.equal(grounded, codes) and bool(among.all())
+
+
+def test_descriptions_left_to_the_same_board_entities_are_read_as_different_ones(hedged):
+    from lwm_models.messenger.constants import IDENTITIES
+    from lwm_models.world.hedged_reading import _TRIPLE_FIELDS, ground_words, prototype_distances, readings
+
+    model, _ = hedged
+    pk, pv = model.proto_keys, model.proto_values
+    plane, dog, robot = (IDENTITIES[n] for n in ("airplane", "dog", "robot"))
+    # the model reads all three as the plane chasing you and deadly; the words name the plane
+    # once and then two entities off the board, whose movement and role they state
+    a = ALL_TRIPLES.index(("airplane", "chaser", "enemy"))
+    keys, values = pk[a].expand(1, 3, -1).clone(), pv[a].expand(1, 3, -1).clone()
+    codes = torch.tensor([[words_code("the plane chases you and it is deadly."),
+                           words_code("the queen never moves and has the message."),
+                           words_code("the wizard never moves and is the goal.")]])  # fmt: skip
+    grounded, among = ground_words(codes, torch.tensor([[plane, dog, robot]]))
+    r = readings(keys, values, grounded, pk, pv, float(model.stand_distance), among=among)
+    # nearness does not let a reading of an entity the board rules out stand
+    assert r.alone.tolist() == [[True, False, False]]
+    entity = _TRIPLE_FIELDS[prototype_distances(r.keys, r.values, pk, pv).argmin(-1), 0]  # [R, 3]
+    # two readings, the dog and the robot each way round, and never the same entity twice
+    assert sorted(entity[:, 1:].tolist()) == [[dog, robot], [robot, dog]]
+    assert torch.allclose(r.log_prior.exp(), torch.tensor([0.5, 0.5]))
 
 
 def test_a_hedged_model_grounds_its_words_only_when_its_config_says_so(hedged, tmp_path):
@@ -378,6 +415,7 @@ def test_a_hedged_model_grounds_its_words_only_when_its_config_says_so(hedged, t
         assert model.on_board(manual, board) is manual
         model.ground = True
         assert (model.on_board(manual, board).routed // 16).tolist() == [[5, 3, 2]]
+        assert model.on_board(manual, board).among is not None
         # teacher-forced, the board is each episode's first observation: exactly the episodes
         # whose words name an entity off their board are predicted otherwise
         generate_dataset(tmp_path, DescriptionPools.generated(), max_games=12, train_episodes_per_game=2,
@@ -386,7 +424,8 @@ def test_a_hedged_model_grounds_its_words_only_when_its_config_says_so(hedged, t
         data = SplitTokens(tmp_path, "newall-dev", encoder, model.route)
         redraw_manuals(data, stress_pools("typos", "dev"), encoder, 0)
         tokens, lengths, episodes = next(iter(data.full_episodes(24, 24)))
-        changed = (ground_words(episodes.routed, tokens[:, torch.as_tensor(ID_SLOTS)]) != episodes.routed).any(-1)
+        grounded, among = ground_words(episodes.routed, tokens[:, torch.as_tensor(ID_SLOTS)])
+        changed = (grounded != episodes.routed).any(-1) | ~among.flatten(1).all(-1)
         assert changed.any() and not changed.all()
         obs = {}
         for ground in (False, True):
@@ -419,6 +458,6 @@ def test_the_server_conditions_on_the_words_as_grounded_and_computes_them_once(h
         assert srv._conditioning(state.batch, state, own_board) is on_own  # the same words: once
         # on a board without the robot, the goal is the queen: other words, conditioned anew
         on_other = srv._conditioning(state.batch, state, other_board)
-        assert on_other is not on_own and [w // 16 for w in state.cond_words] == [plane, ball, queen]
+        assert on_other is not on_own and [w // 16 for w in state.cond_words[:3]] == [plane, ball, queen]
     finally:
         srv.model.ground = False

@@ -27,7 +27,7 @@ from ..messenger.constants import NUM_IDS
 from .base import ManualBatch, WorldModelConfig
 from .frozen_text import FrozenTextEncoder
 from .gpthard import GPTHardLWM
-from .hedged_reading import HedgedReading, Readings, words_code
+from .hedged_reading import HedgedReading, Readings, code_fields, words_code
 
 
 def routing_keys(identity_ids: torch.Tensor) -> torch.Tensor:
@@ -50,13 +50,13 @@ class HedgedGPTHardLWM(HedgedReading, GPTHardLWM):
 
     def routed_identity(self, text: str, encoder: FrozenTextEncoder | None = None) -> int:
         """The identity id the words name (0: none; the readings then hedge over the entities)."""
-        return words_code(text, encoder) // 16
+        return int(code_fields(torch.tensor(words_code(text, encoder)))[0])
 
     def _values(self, features: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
         return self.v_proj(self.value_pool(self.text_encoder(features, mask), mask))
 
     def _read(self, manual: ManualBatch) -> tuple[torch.Tensor, torch.Tensor]:
-        return routing_keys(manual.routed // 16), self._values(manual.features, manual.mask)
+        return routing_keys(code_fields(manual.routed)[0]), self._values(manual.features, manual.mask)
 
     def _read_texts(self, encoder: FrozenTextEncoder, texts: list[str]) -> tuple[torch.Tensor, torch.Tensor]:
         """The routing and value [N, W] of each text alone, in chunks (the dataset's training text)."""
@@ -66,7 +66,7 @@ class HedgedGPTHardLWM(HedgedReading, GPTHardLWM):
             chunk = texts[lo : lo + 256]
             features, mask = encoder.encode(chunk)
             values.append(self._values(features.float()[:, None], mask[:, None])[:, 0])
-            keys.append(routing_keys(torch.tensor([words_code(t, encoder) // 16 for t in chunk])))
+            keys.append(routing_keys(code_fields(torch.tensor([words_code(t, encoder) for t in chunk]))[0]))
         return torch.cat(keys), torch.cat(values)
 
     def _tables(self, r: Readings) -> torch.Tensor:

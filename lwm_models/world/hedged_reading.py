@@ -75,24 +75,36 @@ def _name_encoder() -> FrozenTextEncoder:
     return FrozenTextEncoder(max_tokens=NAME_TOKENS)
 
 
+GUESSED = 512  # a words code's flag: its entity is the encoder's nearest name, no keyword's
+
+
 def words_code(text: str, encoder: FrozenTextEncoder | None = None) -> int:
     """What a description's words decide, as one int: identity id * 16 + (movement index + 1) * 4
-    + (role index + 1); 0 marks a field left open (the identity is open only when no name is
-    near). `encoder`: a loaded frozen encoder to share (its text model, at the default length, so
-    the answer does not depend on who asks)."""
+    + (role index + 1), plus `GUESSED` where no keyword names the entity and the encoder's nearest
+    name does; 0 marks a field left open (the identity is open only when no name is near; read the
+    fields with `code_fields`). `encoder`: a loaded frozen encoder to share (its text model, at the
+    default length, so the answer does not depend on who asks)."""
     encoder = _name_encoder() if encoder is None else encoder.keeping(NAME_TOKENS)
-    identity = parse_identity(text, encoder)
+    named = parse_identity(text)
+    identity = named if named is not None else parse_identity(text, encoder)
     movement, role = parse_movement(text), parse_role(text)
     return (
-        IDENTITIES.get(identity, 0) * 16
+        (GUESSED if named is None and identity is not None else 0)
+        + IDENTITIES.get(identity, 0) * 16
         + (0 if movement is None else MOVEMENTS.index(movement) + 1) * 4
         + (0 if role is None else ROLES.index(role) + 1)
     )
 
 
+def code_fields(codes: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """A words code's (`words_code` [...]) identity id (0: open), movement and role index (-1:
+    open)."""
+    return (codes % GUESSED) // 16, (codes // 4) % 4 - 1, codes % 4 - 1
+
+
 def candidates(codes: torch.Tensor) -> torch.Tensor:
     """[..., 108] bool: the triples that agree with each description's words (`words_code` [...])."""
-    identity, movement, role = codes // 16, (codes // 4) % 4 - 1, codes % 4 - 1
+    identity, movement, role = code_fields(codes)
     fields = _TRIPLE_FIELDS.to(codes.device)
     ok = (identity[..., None] == 0) | (identity[..., None] == fields[:, 0])
     ok &= (movement[..., None] < 0) | (movement[..., None] == fields[:, 1])
@@ -112,12 +124,20 @@ def prototype_distances(
 
 
 def _checked(
-    keys: torch.Tensor, values: torch.Tensor, codes: torch.Tensor, proto_keys: torch.Tensor, proto_values: torch.Tensor
+    keys: torch.Tensor,
+    values: torch.Tensor,
+    codes: torch.Tensor,
+    proto_keys: torch.Tensor,
+    proto_values: torch.Tensor,
+    among: torch.Tensor | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
-    """Each reading checked against its words: its distance to its nearest prototype and which that
-    is [B, 3], the triples the words allow [B, 3, 108], and whether they allow the nearest [B, 3]."""
+    """Each reading checked against its words (and, `among` [B, 3, 17], the entities its board
+    leaves it): its distance to its nearest prototype and which that is [B, 3], the triples the
+    words allow [B, 3, 108], and whether they allow the nearest [B, 3]."""
     closest, nearest = prototype_distances(keys, values, proto_keys, proto_values).min(-1)
     allowed = candidates(codes)
+    if among is not None:
+        allowed &= among[..., _TRIPLE_FIELDS[:, 0].to(codes.device)]
     allowed = allowed | ~allowed.any(-1, keepdim=True)  # words that fit no triple leave everything open
     return closest, nearest, allowed, allowed.gather(-1, nearest[..., None]).squeeze(-1)
 
@@ -174,30 +194,41 @@ def _options(
     own_weight: float,
     proto_keys: torch.Tensor,
     proto_values: torch.Tensor,
-) -> list[tuple[torch.Tensor, torch.Tensor, float]]:
-    """One description's readings (key, value, prior) among the triples `allow` [108]: with
-    `with_own`, the model's own reading in place of its `nearest` prototype at `own_weight`, the
-    rest of the triples sharing what is left evenly; likeliest first."""
+) -> list[tuple[torch.Tensor, torch.Tensor, float, int]]:
+    """One description's readings (key, value, prior, entity id) among the triples `allow` [108]:
+    with `with_own`, the model's own reading in place of its `nearest` prototype at `own_weight`,
+    the rest of the triples sharing what is left evenly; likeliest first."""
     triples = torch.nonzero(allow).flatten().tolist()
+    entity = _TRIPLE_FIELDS[:, 0].tolist()
     if with_own:
         rest = [t for t in triples if t != nearest]
-        out = [(*own, own_weight if rest else 1.0)]
+        out = [(*own, own_weight if rest else 1.0, entity[nearest])]
     else:
         rest, out = triples, []
-    share = (1.0 - sum(w for _, _, w in out)) / max(1, len(rest))
-    return out + [(proto_keys[t], proto_values[t], share) for t in rest]
+    share = (1.0 - sum(o[2] for o in out)) / max(1, len(rest))
+    return out + [(proto_keys[t], proto_values[t], share, entity[t]) for t in rest]
 
 
-def _likeliest(per_description: list[list[tuple]], k: int) -> list[tuple[tuple[int, ...], float]]:
+def _likeliest(
+    per_description: list[list[tuple]], k: int, distinct: list[bool] | None = None
+) -> list[tuple[tuple[int, ...], float]]:
     """The k likeliest combinations of one option per description, as (option indices, prior),
-    likeliest first and ties in the order of the indices. Built one description at a time, keeping
-    the k likeliest partial combinations: exact (a combination among the k likeliest extends a
-    partial one among the k likeliest), and it never lists the whole product (108 options each for
-    three descriptions whose words name no entity would be 1.3 million)."""
+    likeliest first and ties in the order of the indices; the descriptions marked `distinct` about
+    different entities (an option's entity is its fourth field). Built one description at a time,
+    keeping the k likeliest partial combinations: exact (a combination among the k likeliest
+    extends a partial one among the k likeliest), and it never lists the whole product (108 options
+    each for three descriptions whose words name no entity would be 1.3 million)."""
+    distinct = distinct or [False] * len(per_description)
+
+    def fits(picks: tuple[int, ...]) -> bool:
+        seen = [per_description[j][i][3] for j, i in enumerate(picks) if distinct[j]]
+        return len(seen) == len(set(seen))
+
     best: list[tuple[tuple[int, ...], float]] = [((), 1.0)]
     for options in per_description:
         grown = [(picks + (i,), prior * o[2]) for picks, prior in best for i, o in enumerate(options)]
-        best = sorted(grown, key=lambda c: (-c[1], c[0]))[:k]
+        kept = [c for c in grown if fits(c[0])]
+        best = sorted(kept or grown, key=lambda c: (-c[1], c[0]))[:k]
     return best
 
 
@@ -211,6 +242,7 @@ def readings(
     own_weight: float = OWN_WEIGHT,
     max_readings: int = MAX_READINGS,
     other_identity: float = OTHER_IDENTITY,
+    among: torch.Tensor | None = None,
 ) -> Readings:
     """keys, values [B, 3, W] as the model reads them, codes [B, 3] -> every way each manual may be
     read, with a prior. A description is read one way, the model's own, when the words decide its
@@ -221,15 +253,21 @@ def readings(
     where the words allow that one, the rest sharing what is left evenly. Where the words name
     another entity than the model's nearest prototype does, the readings the words allow with the
     model's entity in place of theirs join with prior `other_identity` (the rest scaled down), so
-    that a misspelt or unusual name does not commit the reading to the words' guess. A manual's
-    readings are the combinations of its descriptions' (the likeliest `max_readings`)."""
-    closest, nearest, allowed, agree = _checked(keys, values, codes, proto_keys, proto_values)
+    that a misspelt or unusual name does not commit the reading to the words' guess. `among`
+    [B, 3, 17] (`ground_words`): the entities each description may be about on its board; a
+    reading of another entity does not stand, and the descriptions it narrows are read as about
+    different entities. A manual's readings are the combinations of its descriptions' (the
+    likeliest `max_readings`)."""
+    closest, nearest, allowed, agree = _checked(keys, values, codes, proto_keys, proto_values, among)
     decided = ((codes // 4) % 4 > 0) & (codes % 4 > 0)
-    # Nearness vouches for the model's language, not against words that state movement and role.
-    alone = (agree & decided) | ((closest <= stand_distance) & (agree | ~decided))
+    said, read = code_fields(codes)[0], _TRIPLE_FIELDS.to(codes.device)[nearest, 0]  # identity ids [B, 3]
+    grounded = torch.zeros_like(decided) if among is None else ~among.all(-1)
+    on_board = torch.ones_like(decided) if among is None else among.gather(-1, read[..., None]).squeeze(-1)
+    # Nearness vouches for the model's language, not against words that state movement and role,
+    # nor for an entity the board rules out.
+    alone = (agree & decided) | ((closest <= stand_distance) & (agree | ~decided) & on_board)
     own_among = agree & ~alone
-    said, read = codes // 16, _TRIPLE_FIELDS.to(codes.device)[nearest, 0]  # identity ids [B, 3]
-    other = (said > 0) & (said != read) & ~alone & (other_identity > 0)
+    other = (said > 0) & (said != read) & ~alone & ~grounded & (other_identity > 0)
     other_allowed = candidates(codes + (read - said) * 16)  # the words, the model's entity
     ks, vs, owner, log_prior = [], [], [], []
     for b in range(keys.shape[0]):
@@ -237,17 +275,17 @@ def readings(
         for j in range(keys.shape[1]):
             own = (keys[b, j], values[b, j])
             if alone[b, j]:
-                per_description.append([(*own, 1.0)])
+                per_description.append([(*own, 1.0, int(read[b, j]))])
                 continue
             near = int(nearest[b, j])
             protos = (own_weight, proto_keys, proto_values)
             these = _options(allowed[b, j], own, near, bool(own_among[b, j]), *protos)
             if other[b, j]:
                 theirs = _options(other_allowed[b, j], own, near, bool(other_allowed[b, j, near]), *protos)
-                these = [(k, v, w * (1 - other_identity)) for k, v, w in these]
-                these += [(k, v, w * other_identity) for k, v, w in theirs]
+                these = [(k, v, w * (1 - other_identity), e) for k, v, w, e in these]
+                these += [(k, v, w * other_identity, e) for k, v, w, e in theirs]
             per_description.append(these)
-        combos = _likeliest(per_description, max_readings)
+        combos = _likeliest(per_description, max_readings, grounded[b].tolist())
         priors = torch.tensor([prior for _, prior in combos], dtype=torch.float64)
         log_prior.append(torch.log(priors / priors.sum()).float())
         for picks, _ in combos:
@@ -293,22 +331,40 @@ def mixture_log_probs(
     return out
 
 
-def ground_words(codes: torch.Tensor, board: torch.Tensor) -> torch.Tensor:
-    """The words (`words_code` [B, 3]) with their entities grounded on each manual's board (identity
-    ids [B, K], 0 for none): a manual describes the entities of one board, so a description whose
-    words name an entity that is not on it (a misspelt or unusual name the parser read as another)
-    is about the board entity no other description names, when it is the only such description and
-    there is exactly one such entity; otherwise its entity is left open. Words naming an entity on
-    the board stay."""
+def ground_words(codes: torch.Tensor, board: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """The words (`words_code` [B, 3]) grounded on each manual's board (identity ids [B, K], 0 for
+    none), and [B, 3, 17] bool: the entity ids each description may be about there (`readings`).
+
+    A manual describes the entities of its board, each once. A description whose words name a
+    board entity by keyword that no other keyword names is about that entity; then one whose
+    encoder-guessed name is a board entity left that no other guess names. The others (words
+    naming an entity off the board, none, or one another description names too) are about the
+    board entities left: the one left, when one description and one entity are (the words' entity
+    becomes it); else any of them, each a different one. When more descriptions than entities are
+    left, their entities stay open (an entity named off the board: any)."""
     out = codes.clone()
+    among = torch.ones(*codes.shape, NUM_IDS, dtype=torch.bool)
     for b in range(codes.shape[0]):
-        on = [int(i) for i in board[b].tolist() if i > 0]
-        named = [int(c) // 16 for c in codes[b].tolist()]
-        off = [j for j, entity in enumerate(named) if entity not in on]
-        free = [i for i in on if i not in named]
-        for j in off:
-            out[b, j] += ((free[0] if len(off) == 1 and len(free) == 1 else 0) - named[j]) * 16
-    return out
+        on = list(dict.fromkeys(int(i) for i in board[b].tolist() if i > 0))
+        named = code_fields(codes[b])[0].tolist()
+        guessed = (codes[b] >= GUESSED).tolist()
+        taken: dict[int, int] = {}  # description -> the board entity it is about
+        for by_guess in (False, True):
+            names = [named[j] for j in range(len(named)) if guessed[j] == by_guess and j not in taken]
+            for j, entity in enumerate(named):
+                free = entity in on and entity not in taken.values() and names.count(entity) == 1
+                if guessed[j] == by_guess and j not in taken and free:
+                    taken[j] = entity
+        rest = [j for j in range(len(named)) if j not in taken]
+        left = [i for i in on if i not in taken.values()]
+        for j in rest:
+            if len(rest) > len(left):
+                out[b, j] = codes[b, j] % 16 + (named[j] * 16 if named[j] in on else 0)
+                continue
+            out[b, j] = codes[b, j] % 16 + (left[0] if len(left) == 1 else 0) * 16
+            among[b, j] = False
+            among[b, j, left] = True
+    return out, among
 
 
 def practice_codes(codes: torch.Tensor, rate: float, open_rate: float = 0.5) -> tuple[torch.Tensor, torch.Tensor]:
@@ -360,7 +416,8 @@ class HedgedReading:
         board = torch.as_tensor(board).long()
         if len(board) != len(manual.routed):
             board = board[:1].expand(len(manual.routed), -1)
-        return replace(manual, routed=ground_words(manual.routed, board))
+        routed, among = ground_words(manual.routed, board)
+        return replace(manual, routed=routed, among=among)
 
     def _read(self, manual: ManualBatch) -> tuple[torch.Tensor, torch.Tensor]:
         raise NotImplementedError
@@ -384,6 +441,7 @@ class HedgedReading:
             float(self.stand_distance),
             self.own_weight,
             other_identity=self.other_identity,
+            among=manual.among,
         )
 
     def condition(self, manual: ManualBatch) -> Conditioning:
@@ -440,7 +498,7 @@ class HedgedReading:
         filled them in itself) or it imagines a mixture of what the words allow."""
         out = []
         for code, stood in zip(manual.routed[0].tolist(), self._stands(manual)[0].tolist()):
-            decided = (code // 16 > 0, (code // 4) % 4 > 0, code % 4 > 0)
+            decided = ((code % GUESSED) // 16 > 0, (code // 4) % 4 > 0, code % 4 > 0)
             open_ = [f for f, d in zip(("identity", "movement", "role"), decided) if not d]
             out.append({"open": open_, "guessed": bool(stood)})
         return out
@@ -539,7 +597,9 @@ __all__ = [
     "HedgedEmmaLWM",
     "HedgedReading",
     "Readings",
+    "GUESSED",
     "candidates",
+    "code_fields",
     "ground_words",
     "hedge",
     "mixture_log_probs",

@@ -27,18 +27,21 @@ class ManualBatch:
     features: [B, 3, T, F] frozen text-encoder token vectors of each description.
     mask: [B, 3, T] True at real (non-padding) tokens.
     parse: [B, 3, 3] long, per description the true (identity id, movement index, role index).
-    routed: [B, 3] long, per description the identity id an external parser assigned (GPTHard).
+    routed: [B, 3] long, per description the identity id an external parser assigned (GPTHard),
+        or what its words decide (hedged models, `hedged_reading.words_code`).
+    among: [B, 3, 17] bool, per description the entity ids it may be about on its board (a hedged
+        model grounding its words, `hedged_reading.ground_words`); None: any.
     """
 
     features: torch.Tensor | None = None
     mask: torch.Tensor | None = None
     parse: torch.Tensor | None = None
     routed: torch.Tensor | None = None
+    among: torch.Tensor | None = None
 
     def index(self, idx: torch.Tensor) -> ManualBatch:
-        return ManualBatch(
-            *(None if t is None else t[idx] for t in (self.features, self.mask, self.parse, self.routed))
-        )
+        fields = (self.features, self.mask, self.parse, self.routed, self.among)
+        return ManualBatch(*(None if t is None else t[idx] for t in fields))
 
 
 def text_manual(descriptions: Sequence[str], encoder: FrozenTextEncoder | None) -> ManualBatch:

@@ -38,6 +38,7 @@ from .base import Conditioning
 from .checkpoint import load_checkpoint
 from .continuous import OneShot, run_alone
 from .frozen_text import FrozenTextEncoder
+from .hedged_reading import code_fields
 from .imagine import Imagination, StepwiseImagination, board_of, condition_rows
 from .manual import ManualBatch
 from .reading import grounding, read_identities, ungrounded_note, unsure_fields, unsure_note
@@ -206,7 +207,8 @@ class WorldModelServer:
         read = self.model.on_board(state.batch, ids)
         if read is state.batch:
             return None, state.unsure
-        return [ID_TO_IDENTITY.get(int(c) // 16) for c in read.routed[0]], unsure_fields(self.model, read, state.manual)
+        entities = code_fields(read.routed[0])[0].tolist()
+        return [ID_TO_IDENTITY.get(e) for e in entities], unsure_fields(self.model, read, state.manual)
 
     def take_env_manual(
         self, descriptions: list[str], episode_id: str = "", agent: str | None = None
@@ -356,6 +358,8 @@ class WorldModelServer:
         if state is None or state.batch is not batch:
             return self.model.condition_on(read)
         words = () if read is batch else tuple(read.routed.flatten().tolist())
+        if read.among is not None:  # the entities the board leaves each description are words too
+            words += tuple(read.among.flatten().tolist())
         if state.cond is None or state.cond_words != words:
             state.cond, state.cond_words = self.model.condition_on(read), words
         return state.cond
