@@ -101,6 +101,46 @@ def test_the_server_says_which_board_entity_a_grounding_model_takes_a_stray_name
     messages.dump("status", sim.status())  # the schema takes what the page is sent
 
 
+def test_the_server_says_a_grounding_model_shares_two_stray_names_out_among_the_board(tmp_path):
+    # Two descriptions naming entities off the board, two board entities no description names: each
+    # is taken as one of them, a different one each, and the person is told so, in the status and
+    # in the note.
+    game = load_split("newall-test")[0]
+    board = [e.identity for e in game.entities]
+    sim = WorldModelServer(state_path=tmp_path / "state.json")
+    pools = DescriptionPools.generated()
+    sim.take_env_manual(pools.draw("newall-test", list(game.triples), np.random.default_rng(1)), "newall-test:0:0")
+    strays = [t for g in load_split("newall-test") for t in g.triples if t[0] not in board]
+    two = [strays[0], next(t for t in strays if t[0] != strays[0][0])]
+    manual = pools.draw("newall-test", [game.triples[0], *two], np.random.default_rng(3))
+    sim.set_manual(manual, "human")
+    reading = sim.status()["reading"]
+    assert "grounded_among" not in reading[0] and "grounded_as" not in reading[0]
+    assert [r["grounded_among"] for r in reading[1:]] == [board[1:], board[1:]]
+    note = sim.ungrounded()
+    assert f"as about the {board[1]} and the {board[2]}, one each" in note, note
+    messages.dump("status", sim.status())  # the schema takes what the page is sent
+
+
+def test_the_note_and_the_status_name_the_entities_a_description_is_shared_among():
+    descriptions = ["the hound is the goal", "the czarina has the message", "the jet is deadly"]
+    board = ["robot", "queen", "airplane"]
+    read = ["dog", "queen", "airplane"]
+    # words naming the dog and the jet... and the queen, one of them named twice by keywords: the
+    # grounding model shares the first two out among the robot and the queen
+    grounded = [["robot", "queen"], ["robot", "queen"], ["airplane"]]
+    status = grounding(read, board, None, grounded)
+    assert status[0] == {"identity": "dog", "on_board": False, "grounded_among": ["robot", "queen"]}
+    assert status[1] == {"identity": "queen", "on_board": True, "grounded_among": ["robot", "queen"]}
+    assert status[2] == {"identity": "airplane", "on_board": True}
+    note = ungrounded_note(descriptions, read, board, grounded)
+    assert note == (
+        'the world model reads "the hound is the goal" as about the dog, not on this board (robot, queen, airplane); '
+        'it takes "the hound is the goal" and "the czarina has the message" as about the robot and the queen, '
+        "one each, and imagines each way round"
+    )
+
+
 def test_a_model_trained_on_longer_descriptions_reads_them_whole(emma):
     model, encoder = emma
     long_winded = (

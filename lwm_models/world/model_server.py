@@ -199,16 +199,20 @@ class WorldModelServer:
 
     def _on_board(self, state: ManualState, board: list[str] | None) -> tuple[list | None, list | None]:
         """A model that grounds its words on the board (hedged_reading.ground_words) reads them as
-        grounded: the identity each description is taken as about there (None: left open), and
-        what the grounded words leave open. (None, the read-back) for any other model or board."""
+        grounded: per description the board entities it is taken as about there ([one], [several]:
+        one of them, each description a different one; []: open), and what the grounded words
+        leave open. (None, the read-back) for any other model or board."""
         if board is None or state.batch is None or state.batch.routed is None:
             return None, state.unsure
         ids = torch.tensor([[IDENTITIES[b] for b in board]])
         read = self.model.on_board(state.batch, ids)
         if read is state.batch:
             return None, state.unsure
-        entities = code_fields(read.routed[0])[0].tolist()
-        return [ID_TO_IDENTITY.get(e) for e in entities], unsure_fields(self.model, read, state.manual)
+        grounded = []
+        for entity, among in zip(code_fields(read.routed[0])[0].tolist(), read.among[0], strict=True):
+            narrowed = [] if among.all() else [ID_TO_IDENTITY[int(i)] for i in torch.nonzero(among).flatten()]
+            grounded.append([ID_TO_IDENTITY[entity]] if entity else narrowed)
+        return grounded, unsure_fields(self.model, read, state.manual)
 
     def take_env_manual(
         self, descriptions: list[str], episode_id: str = "", agent: str | None = None

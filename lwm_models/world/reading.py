@@ -108,15 +108,20 @@ def grounding(
     read: Sequence[str | None],
     board: Sequence[str],
     unsure: Sequence[dict] | None = None,
-    grounded: Sequence[str | None] | None = None,
+    grounded: Sequence[Sequence[str]] | None = None,
 ) -> list[dict]:
     """Per description: the identity read, whether that entity is on the board, (a model that
-    grounds its words, `grounded`) the board entity it takes a description read as about another
-    as about, and (hedged models) what the words leave open and whether the world model guessed it."""
+    grounds its words, `grounded`: the board entities each description is taken as about) the
+    board entity it takes a description read as about another as about (`grounded_as`), or the
+    board entities a description is one of (`grounded_among`, each of them a different
+    description's), and (hedged models) what the words leave open and whether the world model
+    guessed it."""
     out = [{"identity": r, "on_board": r is not None and r in board} for r in read]
     for entry, g in zip(out, grounded or []):
-        if not entry["on_board"] and g is not None and g in board:
-            entry["grounded_as"] = g
+        if len(g) == 1 and not entry["on_board"] and g[0] in board:
+            entry["grounded_as"] = g[0]
+        elif len(g) > 1:
+            entry["grounded_among"] = list(g)
     for entry, u in zip(out, unsure or []):
         if u["open"]:
             entry["unsure"] = list(u["open"])
@@ -128,22 +133,29 @@ def ungrounded_note(
     descriptions: Sequence[str],
     read: Sequence[str | None],
     board: Sequence[str],
-    grounded: Sequence[str | None] | None = None,
+    grounded: Sequence[Sequence[str]] | None = None,
 ) -> str | None:
     """What to tell a person whose descriptions the world model reads as about entities that are
     not on the board (and, for a model that grounds its words, `grounded`, which board entity it
-    takes each as about instead), or None when every description is about one that is."""
+    takes each as about instead), or whose words it shares out among the board's entities; None
+    when there is nothing to say."""
+    notes = []
     off = [(i, r) for i, r in enumerate(read) if r is not None and r not in board]
-    if not off:
-        return None
-    said = " and ".join(f'"{_short(descriptions[i])}" as about the {r}' for i, r in off)
-    note = f"the world model reads {said}, not on this board ({', '.join(board)})"
-    # Grounding takes a description only when it is the one off the board (ground_words), so "it"
-    # is the description just quoted.
-    taken = [grounded[i] for i, _ in off if grounded and grounded[i] in board]
-    if taken:
-        note += f"; it takes it as about the {taken[0]}, the one entity on the board no other description names"
-    return note
+    if off:
+        said = " and ".join(f'"{_short(descriptions[i])}" as about the {r}' for i, r in off)
+        note = f"the world model reads {said}, not on this board ({', '.join(board)})"
+        # Grounding takes a description alone only when it is the one left (ground_words), so
+        # "it" is the description just quoted.
+        taken = [grounded[i][0] for i, _ in off if grounded and len(grounded[i]) == 1 and grounded[i][0] in board]
+        if taken:
+            note += f"; it takes it as about the {taken[0]}, the one entity on the board no other description names"
+        notes.append(note)
+    shared = [i for i, g in enumerate(grounded or []) if len(g) > 1]
+    if shared:
+        quoted = " and ".join(f'"{_short(descriptions[i])}"' for i in shared)
+        entities = " and the ".join(grounded[shared[0]])
+        notes.append(f"it takes {quoted} as about the {entities}, one each, and imagines each way round")
+    return "; ".join(notes) or None
 
 
 def unsure_note(descriptions: Sequence[str], unsure: Sequence[dict] | None) -> str | None:
