@@ -57,12 +57,18 @@ def test_the_note_names_what_is_off_the_board():
     ]
 
 
-def test_the_world_model_server_flags_a_manual_about_another_board(tmp_path):
+def served_first_game(tmp_path):
+    """The shipped world-model server with NewAll test's first game's manual (generated), its game,
+    board and the generator's pools."""
     game = load_split("newall-test")[0]
-    board = [e.identity for e in game.entities]
     sim = WorldModelServer(state_path=tmp_path / "state.json")
     pools = DescriptionPools.generated()
     sim.take_env_manual(pools.draw("newall-test", list(game.triples), np.random.default_rng(1)), "newall-test:0:0")
+    return sim, game, [e.identity for e in game.entities], pools
+
+
+def test_the_world_model_server_flags_a_manual_about_another_board(tmp_path):
+    sim, game, board, pools = served_first_game(tmp_path)
     status = sim.status()
     assert status["board"] == board and [r["on_board"] for r in status["reading"]] == [True, True, True]
     assert sim.ungrounded() is None
@@ -79,12 +85,8 @@ def test_the_world_model_server_flags_a_manual_about_another_board(tmp_path):
 def test_the_server_says_which_board_entity_a_grounding_model_takes_a_stray_name_as(tmp_path):
     # The served model grounds its words: one description naming an entity off the board, with one
     # board entity no description names, is taken as about that entity, and the person is told so.
-    game = load_split("newall-test")[0]
-    board = [e.identity for e in game.entities]
-    sim = WorldModelServer(state_path=tmp_path / "state.json")
+    sim, game, board, pools = served_first_game(tmp_path)
     assert sim.model.ground
-    pools = DescriptionPools.generated()
-    sim.take_env_manual(pools.draw("newall-test", list(game.triples), np.random.default_rng(1)), "newall-test:0:0")
     stray = next(t for g in load_split("newall-test") for t in g.triples if t[0] not in board)
     manual = pools.draw("newall-test", [stray, *game.triples[1:]], np.random.default_rng(3))
     sim.set_manual(manual, "human")
@@ -105,11 +107,7 @@ def test_the_server_says_a_grounding_model_shares_two_stray_names_out_among_the_
     # Two descriptions naming entities off the board, two board entities no description names: each
     # is taken as one of them, a different one each, and the person is told so, in the status and
     # in the note.
-    game = load_split("newall-test")[0]
-    board = [e.identity for e in game.entities]
-    sim = WorldModelServer(state_path=tmp_path / "state.json")
-    pools = DescriptionPools.generated()
-    sim.take_env_manual(pools.draw("newall-test", list(game.triples), np.random.default_rng(1)), "newall-test:0:0")
+    sim, game, board, pools = served_first_game(tmp_path)
     strays = [t for g in load_split("newall-test") for t in g.triples if t[0] not in board]
     two = [strays[0], next(t for t in strays if t[0] != strays[0][0])]
     manual = pools.draw("newall-test", [game.triples[0], *two], np.random.default_rng(3))

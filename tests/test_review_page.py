@@ -351,10 +351,30 @@ def test_review_in_the_browser(unnamed_page_system, browser):
     assert taken in status["board"] and f"as about the {taken}, the one entity on the board" in text("message")
     shoot(browser, tmp_path, "review_page_off_board.png", "reading")
 
+    # Two descriptions of entities that are not on this board: the two board entities left are
+    # shared out between them, one each, and the person is told which.
+    taken_names = (*status["board"], stranger)
+    second = next(name for name in ("queen", "sword", "ship", "mage", "dog") if name not in taken_names)
+    first_words = browser.find_element("id", "d1").get_attribute("value")
+    browser.find_element("id", "d1").clear()
+    browser.find_element("id", "d1").send_keys(f"the {second} chases you and it has the message.")
+    browser.find_element("id", "send-manual").click()
+    wait.until(lambda _: "one each" in text("message"))
+    shared = json.load(urllib.request.urlopen(url + "api/state", timeout=10))["status"]["reading"]
+    left = shared[0]["grounded_among"]
+    assert shared[1]["grounded_among"] == left and len(left) == 2 and set(left) <= set(status["board"])
+    wait.until(lambda _: f"taken as the {left[0]} or the {left[1]}" in text("reading"))
+    assert "nothing in the manual is read as" not in text("reading")
+    shoot(browser, tmp_path, "review_page_shared_out.png", "reading")
+    browser.find_element("id", "d1").clear()
+    browser.find_element("id", "d1").send_keys(first_words)
+
     # Words that leave a fact open: the world model says which, at once, under the manual too.
     box = browser.find_element("id", "d0")
     box.clear()
-    box.send_keys(f"the {status['board'][0]} never moves.")
+    # (about the entity the first description was about: naming another one twice would leave
+    # its identity open too, shared out with the entity no description names)
+    box.send_keys(f"the {status['reading'][0]['identity']} never moves.")
     browser.find_element("id", "send-manual").click()
     wait.until(lambda _: "leaves its role unclear" in text("message"))
     wait.until(lambda _: "role unclear" in text("reading"))
