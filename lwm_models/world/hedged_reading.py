@@ -65,6 +65,7 @@ STAND_QUANTILE = 0.5  # of the training descriptions' distances to their nearest
 _TRIPLE_FIELDS = torch.tensor(
     [[IDENTITIES[i], MOVEMENTS.index(m), ROLES.index(r)] for i, m, r in ALL_TRIPLES], dtype=torch.long
 )  # [108, 3]: identity id, movement index, role index
+_TRIPLE_ENTITY: list[int] = _TRIPLE_FIELDS[:, 0].tolist()  # each triple's identity id, for readings
 
 
 NAME_TOKENS = 36  # encoder tokens the words are read with, whichever encoder is shared
@@ -199,7 +200,7 @@ def _options(
     with `with_own`, the model's own reading in place of its `nearest` prototype at `own_weight`,
     the rest of the triples sharing what is left evenly; likeliest first."""
     triples = torch.nonzero(allow).flatten().tolist()
-    entity = _TRIPLE_FIELDS[:, 0].tolist()
+    entity = _TRIPLE_ENTITY
     if with_own:
         rest = [t for t in triples if t != nearest]
         out = [(*own, own_weight if rest else 1.0, entity[nearest])]
@@ -496,10 +497,11 @@ class HedgedReading:
         """Per description of a batch-of-one manual: the fields ("identity", "movement", "role") its
         words leave open (`open`), and whether the world model's own reading stood (`guessed`: it
         filled them in itself) or it imagines a mixture of what the words allow."""
+        identity, movement, role = code_fields(manual.routed[0])
+        decided = torch.stack([identity > 0, movement >= 0, role >= 0], -1).tolist()  # [3, 3]
         out = []
-        for code, stood in zip(manual.routed[0].tolist(), self._stands(manual)[0].tolist()):
-            decided = ((code % GUESSED) // 16 > 0, (code // 4) % 4 > 0, code % 4 > 0)
-            open_ = [f for f, d in zip(("identity", "movement", "role"), decided) if not d]
+        for said, stood in zip(decided, self._stands(manual)[0].tolist()):
+            open_ = [f for f, d in zip(("identity", "movement", "role"), said) if not d]
             out.append({"open": open_, "guessed": bool(stood)})
         return out
 
