@@ -13,10 +13,10 @@ Each of the 108 triples has a prototype: the mean key and value the model reads 
 project's generated descriptions of it (`fit_prototypes`, stored with the weights).
 
 `readings` (the rule served): a description is read one way, the model's own, when its words decide
-the movement and the role and the model's nearest prototype agrees, or when the reading lies within
-`stand_distance` of a prototype (as near as half of the dataset's training descriptions are read,
-`fit_stand_distance`: text the model reads in its own language) and the words do not decide the
-movement and the role against it. Otherwise every candidate is a
+the movement and the role and the model's nearest prototype agrees. (A checkpoint may also let a
+reading within `stand_distance` of a prototype stand where the words do not decide against it,
+`fit_stand_distance`; the served ones let none stand by nearness: on the dev data, a near reading
+as one of several read the dev styles better and the dataset's text as well.) Otherwise every candidate is a
 reading (its prototype), the model's own reading standing for its nearest prototype with prior
 `OWN_WEIGHT` where the words allow it; where the words name another entity than the model reads,
 the model's entity stays a reading too (prior `OTHER_IDENTITY`). A manual's readings are the combinations of its
