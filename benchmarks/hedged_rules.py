@@ -2,8 +2,8 @@
 dev part of the stress set and a dev split, never the held-out part or a test split.
 
 For each rule, the teacher-forced cross-entropy (`evaluate_loss`, as `lwm eval`) with the
-dataset's descriptions and with each style of the stress set's dev part (manuals re-drawn for the
-same triples), and Table 2's imagined reward / termination precision (raw sampling) with the
+dataset's descriptions and with each style of the stress set's dev part (`--part written`: its
+hand-written second dev part; manuals re-drawn for the same triples), and Table 2's imagined reward / termination precision (raw sampling) with the
 dataset's text (`--imagine-styles`: with each dev style too). Rules: "mean" (EMMA-LWM only: a
 description the words do not agree with is read as the mean prototype of what they allow) and
 "mixture:W:Q" (every reading the words allow, the model's own with prior W and the model's entity,
@@ -45,8 +45,9 @@ CHECKPOINTS = ROOT / "lwm_models" / "checkpoints"
 
 
 def set_rule(model, rule: str) -> None:
-    """Read with `rule`: "mean", or "mixture:W:Q" (W the prior of the model's own reading, default
-    0.8; Q that of its entity where the words name another, default 0.15); "+ground" after either
+    """Read with `rule`: "mean", or "mixture:W:Q:D" (W the prior of the model's own reading, default
+    0.8; Q that of its entity where the words name another, default 0.15; D that of the triples one
+    decided field away from the words, default 0); "+ground" after either
     grounds the words' entities on each episode's board first (`hedged_reading.ground_words`)."""
     rule, plus, extra = rule.partition("+")
     if plus and extra != "ground":
@@ -58,16 +59,16 @@ def set_rule(model, rule: str) -> None:
             raise LwmError(f"a {model.kind} model has no mean-prototype rule; give mixture:W[:Q]")
         model.mixture = False
         return
-    if name != "mixture" or len(numbers) > 2:
-        raise LwmError(f"unknown rule {rule!r}: give mean or mixture:W[:Q] (priors, 0-1)")
+    if name != "mixture" or len(numbers) > 3:
+        raise LwmError(f"unknown rule {rule!r}: give mean or mixture:W[:Q[:D]] (priors, 0-1)")
     try:
         weights = [float(x) for x in numbers]
     except ValueError:
         raise LwmError(f"mixture:W:Q needs numbers, got {rule!r}") from None
-    own, other = (weights + [0.8, 0.15][len(weights) :])[:2]
-    if not (0.0 < own <= 1.0 and 0.0 <= other < 1.0):
-        raise LwmError(f"the priors must be in (0, 1] and [0, 1), got {own} and {other}")
-    model.mixture, model.own_weight, model.other_identity = True, own, other
+    own, other, doubt = (weights + [0.8, 0.15, 0.0][len(weights) :])[:3]
+    if not (0.0 < own <= 1.0 and 0.0 <= other < 1.0 and 0.0 <= doubt < 1.0):
+        raise LwmError(f"the priors must be in (0, 1], [0, 1) and [0, 1), got {own}, {other} and {doubt}")
+    model.mixture, model.own_weight, model.other_identity, model.doubt = True, own, other, doubt
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -77,6 +78,12 @@ def main(argv: list[str] | None = None) -> int:
         "--checkpoint", type=Path, default=CHECKPOINTS / "emma-lwm-hedged", help="a hedged EMMA-LWM or GPTHard"
     )
     parser.add_argument("--split", default="newall-dev", help="a dev split")
+    parser.add_argument(
+        "--part",
+        choices=("dev", "written"),
+        default="dev",
+        help="the stress set's part the styles come from (written: the hand-written second dev part)",
+    )
     parser.add_argument("--rules", nargs="+", default=["mean", "mixture:0.8:0", "mixture:0.8:0.15"])
     parser.add_argument("--episodes", type=int, default=100, help="episodes of the cross-entropy (evenly spaced)")
     parser.add_argument("--imagination-episodes", type=int, default=200, help="0: no imagination")
@@ -114,8 +121,8 @@ def main(argv: list[str] | None = None) -> int:
         sources = {"dataset": SplitTokens(args.data, args.split, encoder, model.route)}
         for style in stress_styles():
             data = SplitTokens(args.data, args.split, None, model.route)
-            redraw_manuals(data, stress_pools(style, "dev"), encoder, args.seed)
-            sources[f"dev:{style}"] = data
+            redraw_manuals(data, stress_pools(style, args.part), encoder, args.seed)
+            sources[f"{args.part}:{style}"] = data
     except (LwmError, OSError) as exc:
         print(f"hedged_rules: {exc}", file=sys.stderr)
         return 2
@@ -128,7 +135,7 @@ def main(argv: list[str] | None = None) -> int:
             model.fit_stand_distance(encoder, train_texts, quantile)
             rule = f"{rule} stand {quantile:g}"
         row = {s: evaluate_loss(model, d, limit=args.episodes)["total"] for s, d in sources.items()}
-        styles = [v for s, v in row.items() if s.startswith("dev:")]
+        styles = [v for s, v in row.items() if s != "dataset"]
         row["styles_mean"], row["styles_worst"] = float(np.mean(styles)), float(np.max(styles))
         if args.imagination_episodes:
             im = imagination_metrics(model, sources["dataset"], args.imagination_episodes, args.seed)
@@ -144,7 +151,7 @@ def main(argv: list[str] | None = None) -> int:
             row["styles_reward_precision_mean"] = float(np.mean(list(row["styles_reward_precision"].values())))
         figures[rule] = row
         print(
-            f"{rule:20s} dataset {row['dataset']:.4f}  dev styles mean {row['styles_mean']:.4f} "
+            f"{rule:20s} dataset {row['dataset']:.4f}  {args.part} styles mean {row['styles_mean']:.4f} "
             f"(x{row['styles_mean'] / blind:.2f} Observational's), worst {row['styles_worst']:.4f}"
             + (
                 f"  imagined reward / termination precision {row['reward_precision']:.2f} / "
@@ -152,7 +159,7 @@ def main(argv: list[str] | None = None) -> int:
                 if args.imagination_episodes
                 else ""
             )
-            + (f", dev styles' reward precision {row['styles_reward_precision_mean']:.2f}" if imagined else ""),
+            + (f", {args.part} styles' reward precision {row['styles_reward_precision_mean']:.2f}" if imagined else ""),
             flush=True,
         )
     print(f"{'observational':20s} {blind:.4f} whatever the text")

@@ -9,8 +9,11 @@ three parts that share no template and as few phrases as possible:
 - "heldout": two descriptions per (style, triple), written with other templates, other synonyms,
   other movement and role phrases and other typo kinds; nothing is ever tuned or trained on it;
 - "dev": one description per (style, triple) from a third bank; it may choose between ways of
-  reading, but nothing is trained on it and the parser is not tuned on it. It is drawn after the
-  other two, so adding it left them unchanged.
+  reading, but nothing is trained on it. It is drawn after the other two, so adding it left them
+  unchanged. (Since 2026-11-28 the parser's rules know its phrasings.)
+- "written": one description per (style, triple), each written by hand by a writer who saw none of
+  the banks, the other parts or the parser's rules (lwm_models/text/stress_written.json, copied
+  in as it is); a second dev part, for choices that need wording nothing was tuned on.
 
 So held-out accuracy measures reading of wording the tuning never saw, not of unseen rows of seen
 templates. The output is deterministic (seeded), so re-running this script changes nothing unless
@@ -35,6 +38,7 @@ from lwm_models.text.free_form import STYLES, describe  # noqa: E402
 from lwm_models.text.stress import PARTS  # noqa: E402
 
 OUT = ROOT / "lwm_models" / "text" / "stress_set.json"
+WRITTEN = ROOT / "lwm_models" / "text" / "stress_written.json"
 
 
 def build() -> list[dict]:
@@ -61,12 +65,14 @@ def build() -> list[dict]:
                             "split": part,
                         }
                     )
-    return entries
+    fields = ("text", "identity", "role", "movement", "style")
+    written = json.loads(WRITTEN.read_text(encoding="utf-8"))["entries"]
+    return entries + [{**{k: e[k] for k in fields}, "split": "written"} for e in written]
 
 
 def main() -> int:
     entries = build()
-    for part in ("tune", "dev"):
+    for part in ("tune", "dev", "written"):
         seen = {e["text"] for e in entries if e["split"] == part}
         overlap = [e["text"] for e in entries if e["split"] == "heldout" and e["text"] in seen]
         if overlap:
@@ -75,8 +81,8 @@ def main() -> int:
         "_about": [
             "The project's free-form stress set of Messenger descriptions (issue 30), written for the project.",
             "Built by scripts/make_stress_set.py; each entry's split is 'tune' (may be tuned or trained on),",
-            "'dev' (may choose between ways of reading, never trained or tuned on) or 'heldout' (never tuned or",
-            "trained on). The parts use different templates and phrase banks.",
+            "'dev' (may choose between ways of reading, never trained on), 'heldout' (never tuned or trained on)",
+            "or 'written' (a second dev part, written by hand). The parts use different templates and phrase banks.",
         ],
         "styles": list(STYLES),
         "entries": entries,

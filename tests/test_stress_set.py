@@ -25,10 +25,11 @@ def test_every_style_covers_every_triple_in_every_part():
         for triple in ALL_TRIPLES:
             assert counts[("tune", style, triple)] >= 1 and counts[("heldout", style, triple)] >= 2, (style, triple)
             assert counts[("dev", style, triple)] >= 1, (style, triple)
+            assert counts[("written", style, triple)] == 1, (style, triple)
 
 
 def test_the_parts_differ_in_wording_not_just_rows():
-    tune, dev, heldout = load_stress("tune"), load_stress("dev"), load_stress("heldout")
+    tune, dev, heldout, written = (load_stress(p) for p in ("tune", "dev", "heldout", "written"))
 
     # word trigrams shared by two parts: few, since templates and phrase banks differ
     def trigrams(entries):
@@ -38,13 +39,13 @@ def test_the_parts_differ_in_wording_not_just_rows():
             out.update(zip(words, words[1:], words[2:]))
         return out
 
-    for a, b in ((tune, heldout), (dev, heldout), (tune, dev)):
+    for a, b in ((tune, heldout), (dev, heldout), (tune, dev), (heldout, written), (tune, written), (dev, written)):
         assert not {e.text for e in a} & {e.text for e in b}
         shared = trigrams(a) & trigrams(b)
         assert len(shared) / len(trigrams(b)) < 0.1, sorted(shared)[:20]
     # and none of the set is the project's generator's text
     generated = {t for triple in ALL_TRIPLES for t in generate_descriptions(triple)}
-    assert not generated & {e.text for e in tune + dev + heldout}
+    assert not generated & {e.text for e in tune + dev + heldout + written}
 
 
 def test_stress_pools_have_the_shape_of_the_benchmark_pools():

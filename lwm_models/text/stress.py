@@ -5,6 +5,10 @@ clauses, several facts per sentence), each labelled with its (identity, movement
 and its part: "tune" may be tuned or trained on; "dev" may choose between ways of reading but is
 never trained or tuned on; "heldout" is never used for either. The parts were written with
 different templates and phrases, so a figure on "heldout" is one on wording its tuning never saw.
+"written" is a second dev part: one description per style and triple, each written by hand, not
+from a template, by a writer who saw neither the other parts nor the parser's rules
+(stress_written.json). The parser's rules were tuned on "dev"'s phrasings, so "written" is the
+part where a choice between ways of reading is still made on wording nothing was tuned on.
 
 `stress_pools` turns one style of one part into description pools of the same shape as the
 benchmark's (`DescriptionPools`), so a world model can be evaluated with manuals in that style
@@ -24,7 +28,7 @@ from ..messenger.constants import ALL_TRIPLES, SPLITS, Triple
 from .pools import DescriptionPools, receiving_splits
 
 STRESS_FILE = Path(__file__).with_name("stress_set.json")
-PARTS = ("tune", "dev", "heldout")
+PARTS = ("tune", "dev", "heldout", "written")
 
 
 @dataclass(frozen=True)
@@ -55,7 +59,7 @@ def stress_styles(path: str | Path = STRESS_FILE) -> tuple[str, ...]:
 
 
 def load_stress(part: str | None = None, style: str | None = None, path: str | Path = STRESS_FILE) -> list[StressEntry]:
-    """Entries of the stress set, optionally only one part ("tune" / "dev" / "heldout") and one style."""
+    """Entries of the stress set, optionally only one part (`PARTS`) and one style."""
     styles, entries = _load(Path(path))
     if part is not None and part not in PARTS:
         raise LwmError(f"unknown stress-set part {part!r}; known: {', '.join(PARTS)}")

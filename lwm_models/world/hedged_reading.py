@@ -244,6 +244,7 @@ def readings(
     max_readings: int = MAX_READINGS,
     other_identity: float = OTHER_IDENTITY,
     among: torch.Tensor | None = None,
+    doubt: float = 0.0,
 ) -> Readings:
     """keys, values [B, 3, W] as the model reads them, codes [B, 3] -> every way each manual may be
     read, with a prior. A description is read one way, the model's own, when the words decide its
@@ -270,21 +271,29 @@ def readings(
     own_among = agree & ~alone
     other = (said > 0) & (said != read) & ~alone & ~grounded & (other_identity > 0)
     other_allowed = candidates(codes + (read - said) * 16)  # the words, the model's entity
+    # The words may decide a field wrongly: the triples one decided field away keep a prior `doubt`.
+    movement_bits, role_bits = ((codes // 4) % 4) * 4, codes % 4
+    astray = (candidates(codes - movement_bits) | candidates(codes - role_bits)) & ~candidates(codes)
+    if among is not None:
+        astray &= among[..., _TRIPLE_FIELDS[:, 0].to(codes.device)]
     ks, vs, owner, log_prior = [], [], [], []
     for b in range(keys.shape[0]):
         per_description = []
         for j in range(keys.shape[1]):
             own = (keys[b, j], values[b, j])
-            if alone[b, j]:
-                per_description.append([(*own, 1.0, int(read[b, j]))])
-                continue
             near = int(nearest[b, j])
             protos = (own_weight, proto_keys, proto_values)
-            these = _options(allowed[b, j], own, near, bool(own_among[b, j]), *protos)
-            if other[b, j]:
-                theirs = _options(other_allowed[b, j], own, near, bool(other_allowed[b, j, near]), *protos)
-                these = [(k, v, w * (1 - other_identity), e) for k, v, w, e in these]
-                these += [(k, v, w * other_identity, e) for k, v, w, e in theirs]
+            if alone[b, j]:
+                these = [(*own, 1.0, int(read[b, j]))]
+            else:
+                these = _options(allowed[b, j], own, near, bool(own_among[b, j]), *protos)
+                if other[b, j]:
+                    theirs = _options(other_allowed[b, j], own, near, bool(other_allowed[b, j, near]), *protos)
+                    these = [(k, v, w * (1 - other_identity), e) for k, v, w, e in these]
+                    these += [(k, v, w * other_identity, e) for k, v, w, e in theirs]
+            if doubt > 0 and astray[b, j].any():
+                these = [(k, v, w * (1 - doubt), e) for k, v, w, e in these]
+                these += [(k, v, w * doubt, e) for k, v, w, e in _options(astray[b, j], own, near, False, *protos)]
             per_description.append(these)
         combos = _likeliest(per_description, max_readings, grounded[b].tolist())
         priors = torch.tensor([prior for _, prior in combos], dtype=torch.float64)
@@ -400,6 +409,7 @@ class HedgedReading:
         self.mixture = True
         self.own_weight = OWN_WEIGHT  # the prior of the model's own reading among several
         self.other_identity = OTHER_IDENTITY  # the prior of its entity where the words name another
+        self.doubt = 0.0  # the prior of the triples one decided field away from the words (`readings`)
         # Ground the words' entities on the board before reading (`ground_words`); a checkpoint's
         # config turns it on (`hedged_reading.ground`).
         self.ground = False
@@ -443,6 +453,7 @@ class HedgedReading:
             self.own_weight,
             other_identity=self.other_identity,
             among=manual.among,
+            doubt=self.doubt,
         )
 
     def condition(self, manual: ManualBatch) -> Conditioning:
