@@ -64,7 +64,7 @@ def test_words_that_name_no_entity_are_hedged_over_the_entities(models):
     codes = torch.tensor([[words_code("the plane chases you and it is deadly."), unnamed]])
     keys = routing_keys(codes // 16)
     values = hedged.proto_values[[ALL_TRIPLES.index(("airplane", "chaser", "enemy"))] * 2][None]
-    r = readings(keys, values, codes, hedged.proto_keys, hedged.proto_values, 0.0, other_identity=0.0)
+    r = readings(keys, values, codes, hedged.proto_keys, hedged.proto_values, 0.0, other_identity=0.0, doubt=0.0)
     routed = {int(i) for i in hedged._tables(r).abs().sum(-1).nonzero()[:, 1].tolist()}
     assert IDENTITIES["airplane"] in routed and len(routed) > 2  # the goal is read as several entities
     assert len(r.owner) > 1

@@ -5,6 +5,8 @@ code fits from the weights they were made from."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import pytest
 import torch
 
@@ -178,7 +180,7 @@ def test_readings_are_the_model_s_own_where_the_words_decide_and_each_possibilit
     words = ["the plane chases you and it is deadly.", "the plane is deadly.",
              "the plane chases you and it is the goal."]  # fmt: skip
     codes = torch.tensor([[words_code(w) for w in words]])
-    r = readings(keys, values, codes, pk, pv, stand_distance=-1.0)
+    r = readings(keys, values, codes, pk, pv, stand_distance=-1.0, doubt=0.0)
     assert r.alone.tolist() == [[True, False, False]] and r.own_among.tolist() == [[False, True, False]]
     # 1 x 3 x 1 combinations, likeliest first: the model's own reading of the second description
     assert len(r.owner) == 3 and r.owner.tolist() == [0, 0, 0]
@@ -204,12 +206,13 @@ def test_where_the_words_name_another_entity_the_model_s_entity_stays_possible(h
     plane = ALL_TRIPLES.index(("airplane", "chaser", "enemy"))
     keys, values = pk[ball].expand(1, 3, -1).clone(), pv[ball].expand(1, 3, -1).clone()  # read as the ball
     codes = torch.tensor([[words_code("the plane chases you and it is deadly.")] * 3])  # the words: the plane
-    r = readings(keys[:, :1], values[:, :1], codes[:, :1], pk, pv, stand_distance=-1.0)
+    r = readings(keys[:, :1], values[:, :1], codes[:, :1], pk, pv, stand_distance=-1.0, doubt=0.0)
     assert len(r.owner) == 2 and not r.alone.any()
     assert torch.equal(r.keys[0, 0], pk[plane]) and torch.equal(r.keys[1, 0], keys[0, 0])
     assert torch.allclose(r.log_prior.exp(), torch.tensor([1 - OTHER_IDENTITY, OTHER_IDENTITY]))
     # without it, the words' entity alone
-    assert len(readings(keys[:, :1], values[:, :1], codes[:, :1], pk, pv, -1.0, other_identity=0.0).owner) == 1
+    alone = readings(keys[:, :1], values[:, :1], codes[:, :1], pk, pv, -1.0, other_identity=0.0, doubt=0.0)
+    assert len(alone.owner) == 1
 
 
 def hedge_index(proto_keys: torch.Tensor, key: torch.Tensor) -> int:
@@ -222,7 +225,7 @@ def test_a_manual_with_many_open_fields_keeps_its_likeliest_readings(hedged):
     model, _ = hedged
     far = torch.full((2, 3, model.proto_keys.shape[1]), 100.0)  # near no prototype: no own reading
     codes = torch.tensor([[words_code("the plane.")] * 3, [words_code("the plane chases you and it is deadly.")] * 3])
-    r = readings(far, far, codes, model.proto_keys, model.proto_values, other_identity=0.0)
+    r = readings(far, far, codes, model.proto_keys, model.proto_values, other_identity=0.0, doubt=0.0)
     # 9 x 9 x 9 equally likely combinations for the first manual, kept to the cap; one for the second
     assert r.owner.tolist() == [0] * MAX_READINGS + [1]
     assert torch.allclose(r.log_prior[:MAX_READINGS].exp().sum(), torch.tensor(1.0))
@@ -388,7 +391,7 @@ def test_descriptions_left_to_the_same_board_entities_are_read_as_different_ones
                            words_code("the queen never moves and has the message."),
                            words_code("the wizard never moves and is the goal.")]])  # fmt: skip
     grounded, among = ground_words(codes, torch.tensor([[plane, dog, robot]]))
-    r = readings(keys, values, grounded, pk, pv, stand_distance=1.0, among=among)
+    r = readings(keys, values, grounded, pk, pv, stand_distance=1.0, among=among, doubt=0.0)
     # nearness does not let a reading of an entity the board rules out stand
     assert r.alone.tolist() == [[True, False, False]]
     entity = _TRIPLE_FIELDS[prototype_distances(r.keys, r.values, pk, pv).argmin(-1), 0]  # [R, 3]
@@ -462,3 +465,44 @@ def test_the_server_conditions_on_the_words_as_grounded_and_computes_them_once(h
         assert on_other is not on_own and [w // 16 for w in state.cond_words[:3]] == [plane, ball, queen]
     finally:
         srv.model.ground = False
+
+
+def test_doubt_keeps_the_truth_among_the_readings_where_the_words_decide_a_field_wrongly(hedged, tmp_path):
+    import math
+
+    from lwm_models.data.dataset import generate_dataset
+    from lwm_models.text.pools import DescriptionPools
+    from lwm_models.world.training_data import SplitTokens
+
+    model, _ = hedged
+    generate_dataset(tmp_path, DescriptionPools.generated(), max_games=8, train_episodes_per_game=2,
+                     splits=("newall-dev",))  # fmt: skip
+    data = SplitTokens(tmp_path, "newall-dev", model.frozen_text_encoder(), model.route)
+    tokens, lengths, episodes = next(iter(data.full_episodes(8, 8)))
+    roles = episodes.routed % 4
+    assert bool((roles > 0).all())  # the generator's words decide every role
+    wrong = replace(episodes, routed=episodes.routed.clone())
+    wrong.routed[:, 0] += roles[:, 0] % 3 + 1 - roles[:, 0]  # the first description's role: another one
+
+    def nll(manual, doubt: float) -> torch.Tensor:
+        """Each episode's negative log-likelihood under the readings' mixture [B]."""
+        saved = model.doubt
+        model.doubt = doubt
+        try:
+            with torch.no_grad():
+                out = model.predictions(tokens, lengths, manual)
+        finally:
+            model.doubt = saved
+        total = 0
+        for log_probs, targets, valid in out.values():
+            total = total - (log_probs.gather(-1, targets[..., None]).squeeze(-1) * valid).sum(1)
+        return total
+
+    # words that state the wrong role: without doubt the truth is no reading; with it, an episode
+    # that meets the entity soon shows which reading is right
+    doubting, sure = nll(wrong, 0.02), nll(wrong, 0.0)
+    assert float(doubting.sum()) < float(sure.sum()) - 10
+    # an episode costs at most what the doubt takes from its readings' prior (Bayes), right words or not
+    bound = -3 * math.log(1 - 0.02) + 1e-3
+    assert bool((doubting <= sure + bound).all())
+    assert bool((nll(episodes, 0.02) <= nll(episodes, 0.0) + bound).all())

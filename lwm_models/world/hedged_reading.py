@@ -15,18 +15,20 @@ project's generated descriptions of it (`fit_prototypes`, stored with the weight
 `readings` (the rule served): a description is read one way, the model's own, when its words decide
 the movement and the role and the model's nearest prototype agrees. (A checkpoint may also let a
 reading within `stand_distance` of a prototype stand where the words do not decide against it,
-`fit_stand_distance`; the served ones let none stand by nearness: on the dev data, a near reading
-as one of several read the dev styles better and the dataset's text as well.) Otherwise every candidate is a
-reading (its prototype), the model's own reading standing for its nearest prototype with prior
-`OWN_WEIGHT` where the words allow it; where the words name another entity than the model reads,
-the model's entity stays a reading too (prior `OTHER_IDENTITY`). A manual's readings are the combinations of its
-descriptions' (the likeliest `MAX_READINGS`), and the world model is their mixture: teacher-forced,
-each token's probability is the readings' weighted by their posterior given the episode so far
-(`mixture_log_probs`), so a reading the episode contradicts (the plane does not move as read) loses
-its weight within a few tokens; in imagination each trajectory takes one reading, in proportion to
-the prior (`Conditioning.rows_for`). Measured on NewAll-dev with the stress set's dev part
-(docs/language.md): a reading wrong in one field costs far more than a mixture that holds the right
-one.
+`fit_stand_distance`; the served ones let none stand by nearness: on the dev data, a near reading as
+one of several read the dev styles better and the dataset's text as well.) Otherwise every candidate
+is a reading (its prototype), the model's own reading standing for its nearest prototype with prior
+`OWN_WEIGHT` where the words allow it; where the words name another entity than the model reads, the
+model's entity stays a reading too (prior `OTHER_IDENTITY`). Words decide a field wrongly now and
+then (a person's "it isn't the goal, it's the message" can read as the goal), so the triples one
+decided field away from the words keep a small prior (`DOUBT`, shared among them) and the episode
+can show the truth. A manual's readings are the combinations of its descriptions' (the likeliest
+`MAX_READINGS`), and the world model is their mixture: teacher-forced, each token's probability is
+the readings' weighted by their posterior given the episode so far (`mixture_log_probs`), so a
+reading the episode contradicts (the plane does not move as read) loses its weight within a few
+tokens; in imagination each trajectory takes one reading, in proportion to the prior
+(`Conditioning.rows_for`). Measured on NewAll-dev with the stress set's dev part (docs/language.md):
+a reading wrong in one field costs far more than a mixture that holds the right one.
 
 `hedge` is the rule before (`HedgedEmmaLWM.mixture = False`): a reading the words do not agree
 with becomes the mean prototype of the candidates. The decoder imagines nonsense from a mean over
@@ -168,6 +170,7 @@ def hedge(
 
 OWN_WEIGHT = 0.8  # prior of the model's own reading among the readings the words allow
 OTHER_IDENTITY = 0.15  # prior of the model's identity where the words name another
+DOUBT = 0.05  # prior of the triples one decided field away from what the words decide
 MAX_READINGS = 27  # readings of one manual at most (the likeliest, by prior)
 MIXTURE_ROWS = 256  # reading rows per decoder pass in teacher-forced evaluation (memory)
 
@@ -244,7 +247,7 @@ def readings(
     max_readings: int = MAX_READINGS,
     other_identity: float = OTHER_IDENTITY,
     among: torch.Tensor | None = None,
-    doubt: float = 0.0,
+    doubt: float = DOUBT,
 ) -> Readings:
     """keys, values [B, 3, W] as the model reads them, codes [B, 3] -> every way each manual may be
     read, with a prior. A description is read one way, the model's own, when the words decide its
@@ -258,8 +261,10 @@ def readings(
     that a misspelt or unusual name does not commit the reading to the words' guess. `among`
     [B, 3, 17] (`ground_words`): the entities each description may be about on its board; a
     reading of another entity does not stand, and the descriptions it narrows are read as about
-    different entities. A manual's readings are the combinations of its descriptions' (the
-    likeliest `max_readings`)."""
+    different entities. `doubt`: the prior of the triples one field away from what the words
+    decide (their movement or their role other), the other readings scaled down, so that a field
+    the words decide wrongly is not ruled out. A manual's readings are the combinations of its
+    descriptions' (the likeliest `max_readings`)."""
     closest, nearest, allowed, agree = _checked(keys, values, codes, proto_keys, proto_values, among)
     decided = ((codes // 4) % 4 > 0) & (codes % 4 > 0)
     said, read = code_fields(codes)[0], _TRIPLE_FIELDS.to(codes.device)[nearest, 0]  # identity ids [B, 3]
@@ -409,7 +414,7 @@ class HedgedReading:
         self.mixture = True
         self.own_weight = OWN_WEIGHT  # the prior of the model's own reading among several
         self.other_identity = OTHER_IDENTITY  # the prior of its entity where the words name another
-        self.doubt = 0.0  # the prior of the triples one decided field away from the words (`readings`)
+        self.doubt = DOUBT  # the prior of the triples one decided field away from the words (`readings`)
         # Ground the words' entities on the board before reading (`ground_words`); a checkpoint's
         # config turns it on (`hedged_reading.ground`).
         self.ground = False
