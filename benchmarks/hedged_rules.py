@@ -8,9 +8,9 @@ precision (raw sampling) with the dataset's text (`--imagine-styles`: with each 
 Rules: "mean" (EMMA-LWM only: a description the words do not agree with is read as the mean
 prototype of what they allow) and "mixture:W:Q" (every reading the words allow, the model's own with
 prior W and the model's entity, where the words name another, with prior Q; "mixture:W:Q:D" keeps
-the triples one decided field away from the words at prior D; `hedged_reading.readings`), either with "+ground" (the words' entities grounded on each episode's
-board first); `--stand-quantiles` runs each rule with each stand distance. Observational, which
-reads no text, is the line to beat.
+the triples one decided field away from the words at prior D; `hedged_reading.readings`), either
+with "+ground" (the words' entities grounded on each episode's board first); `--stand-quantiles`
+runs each rule with each stand distance. Observational, which reads no text, is the line to beat.
 Every figure comes from this one run, so the rules are compared on the same episodes and code.
 
     flock /tmp/lwm-heavy.lock .venv/bin/python benchmarks/hedged_rules.py --data data/human \\
