@@ -5,9 +5,10 @@ descriptions and the distance within which a reading stands (from the dataset's 
 descriptions; none for GPTHard, world/hedged_gpthard.py). Nothing is trained; it takes seconds.
 
     .venv/bin/python scripts/hedged_checkpoint.py --data data/human \\
-        --source lwm_models/checkpoints/emma-lwm-reader --out lwm_models/checkpoints/emma-lwm-hedged --ground
+        --source lwm_models/checkpoints/emma-lwm-reader --out lwm_models/checkpoints/emma-lwm-hedged \\
+        --stand-quantile 0 --ground
     .venv/bin/python scripts/hedged_checkpoint.py --data data/human \\
-        --source lwm_models/checkpoints/gpthard --out lwm_models/checkpoints/gpthard-hedged --ground
+        --source lwm_models/checkpoints/gpthard --out lwm_models/checkpoints/gpthard-hedged --ground --doubt 0
 """
 
 from __future__ import annotations
@@ -24,7 +25,7 @@ sys.path.insert(0, str(ROOT))
 from lwm_models.errors import LwmError  # noqa: E402
 from lwm_models.world.checkpoint import load_checkpoint, read_config, save_checkpoint  # noqa: E402
 from lwm_models.world.hedged_gpthard import HedgedGPTHardLWM  # noqa: E402
-from lwm_models.world.hedged_reading import PROTOTYPE_TEXTS, STAND_QUANTILE, HedgedEmmaLWM  # noqa: E402
+from lwm_models.world.hedged_reading import DOUBT, PROTOTYPE_TEXTS, STAND_QUANTILE, HedgedEmmaLWM  # noqa: E402
 from lwm_models.world.reader_tuning import dataset_descriptions  # noqa: E402
 from lwm_models.world.training_data import SplitTokens  # noqa: E402
 
@@ -48,6 +49,12 @@ def main() -> int:
         "--ground",
         action="store_true",
         help="ground the words' entities on the board before reading (hedged_reading.ground_words)",
+    )
+    ap.add_argument(
+        "--doubt",
+        type=float,
+        default=DOUBT,
+        help=f"prior of the triples one decided field away from the words (hedged_reading.readings; default {DOUBT})",
     )
     args = ap.parse_args()
     hedged_kinds = {"emma": (HedgedEmmaLWM, STAND_QUANTILE), "gpthard": (HedgedGPTHardLWM, 0.0)}
@@ -78,6 +85,7 @@ def main() -> int:
         "stand_distance": round(float(hedged.stand_distance), 4),
         "rule": "mixture",  # read every way the words allow (hedged_reading.readings)
         "ground": args.ground,
+        "doubt": args.doubt,
     }
     save_checkpoint(hedged, args.out, meta, dtype=torch.float16)
     print(f"wrote {args.out}")

@@ -47,13 +47,14 @@ def test_a_world_model_recipe_parses_to_what_its_checkpoint_was_trained_with(nam
     config = json.loads((CHECKPOINTS / SHIPPED[name] / "config.json").read_text())
     command = _recipe(name)["command"]
     if command == "scripts/hedged_checkpoint.py":  # nothing trained: another checkpoint plus prototypes
-        from lwm_models.world.hedged_reading import PROTOTYPE_TEXTS, STAND_QUANTILE
+        from lwm_models.world.hedged_reading import DOUBT, PROTOTYPE_TEXTS, STAND_QUANTILE
 
         made = {k: v for k, v in config["hedged_reading"].items() if k != "stand_distance"}  # fitted, not given
         assert made == {
             "prototype_texts": PROTOTYPE_TEXTS,
             "stand_quantile": STAND_QUANTILE,  # unless the recipe gives another (GPTHard: 0)
             "ground": False,  # unless the recipe grounds the words on the board
+            "doubt": DOUBT,  # unless the recipe gives another (GPTHard: 0, not yet measured on held-out text)
             **_recipe(name)["options"],
             "rule": "mixture",  # the script's rule: every reading the words allow
         }

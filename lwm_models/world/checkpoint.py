@@ -149,4 +149,5 @@ def load_checkpoint(directory: str | Path, kind: str | None = None) -> tuple[Wor
     if "hedged_reading" in config and hasattr(model, "mixture"):
         model.mixture = config["hedged_reading"].get("rule", "mixture") == "mixture"
         model.ground = bool(config["hedged_reading"].get("ground", False))  # words grounded on the board
+        model.doubt = float(config["hedged_reading"].get("doubt", 0.0))  # words that may decide wrongly
     return model.eval(), config

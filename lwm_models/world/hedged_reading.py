@@ -21,8 +21,8 @@ is a reading (its prototype), the model's own reading standing for its nearest p
 `OWN_WEIGHT` where the words allow it; where the words name another entity than the model reads, the
 model's entity stays a reading too (prior `OTHER_IDENTITY`). Words decide a field wrongly now and
 then (a person's "it isn't the goal, it's the message" can read as the goal), so the triples one
-decided field away from the words keep a small prior (`DOUBT`, shared among them) and the episode
-can show the truth. A manual's readings are the combinations of its descriptions' (the likeliest
+decided field away from the words keep a small prior (`doubt`, shared among them; a checkpoint's
+config sets it, `hedged_reading.doubt`) and the episode can show the truth. A manual's readings are the combinations of its descriptions' (the likeliest
 `MAX_READINGS`), and the world model is their mixture: teacher-forced, each token's probability is
 the readings' weighted by their posterior given the episode so far (`mixture_log_probs`), so a
 reading the episode contradicts (the plane does not move as read) loses its weight within a few
@@ -170,7 +170,7 @@ def hedge(
 
 OWN_WEIGHT = 0.8  # prior of the model's own reading among the readings the words allow
 OTHER_IDENTITY = 0.15  # prior of the model's identity where the words name another
-DOUBT = 0.05  # prior of the triples one decided field away from what the words decide
+DOUBT = 0.05  # prior of the triples one decided field away from the words (scripts/hedged_checkpoint.py)
 MAX_READINGS = 27  # readings of one manual at most (the likeliest, by prior)
 MIXTURE_ROWS = 256  # reading rows per decoder pass in teacher-forced evaluation (memory)
 
@@ -247,7 +247,7 @@ def readings(
     max_readings: int = MAX_READINGS,
     other_identity: float = OTHER_IDENTITY,
     among: torch.Tensor | None = None,
-    doubt: float = DOUBT,
+    doubt: float = 0.0,
 ) -> Readings:
     """keys, values [B, 3, W] as the model reads them, codes [B, 3] -> every way each manual may be
     read, with a prior. A description is read one way, the model's own, when the words decide its
@@ -414,7 +414,9 @@ class HedgedReading:
         self.mixture = True
         self.own_weight = OWN_WEIGHT  # the prior of the model's own reading among several
         self.other_identity = OTHER_IDENTITY  # the prior of its entity where the words name another
-        self.doubt = DOUBT  # the prior of the triples one decided field away from the words (`readings`)
+        # The prior of the triples one decided field away from the words (`readings`); a checkpoint's
+        # config sets it (`hedged_reading.doubt`).
+        self.doubt = 0.0
         # Ground the words' entities on the board before reading (`ground_words`); a checkpoint's
         # config turns it on (`hedged_reading.ground`).
         self.ground = False
