@@ -22,13 +22,14 @@ is a reading (its prototype), the model's own reading standing for its nearest p
 model's entity stays a reading too (prior `OTHER_IDENTITY`). Words decide a field wrongly now and
 then (a person's "it isn't the goal, it's the message" can read as the goal), so the triples one
 decided field away from the words keep a small prior (`doubt`, shared among them; a checkpoint's
-config sets it, `hedged_reading.doubt`) and the episode can show the truth. A manual's readings are the combinations of its descriptions' (the likeliest
-`MAX_READINGS`), and the world model is their mixture: teacher-forced, each token's probability is
-the readings' weighted by their posterior given the episode so far (`mixture_log_probs`), so a
-reading the episode contradicts (the plane does not move as read) loses its weight within a few
-tokens; in imagination each trajectory takes one reading, in proportion to the prior
-(`Conditioning.rows_for`). Measured on NewAll-dev with the stress set's dev part (docs/language.md):
-a reading wrong in one field costs far more than a mixture that holds the right one.
+config sets it, `hedged_reading.doubt`) and the episode can show the truth. A manual's readings are
+the combinations of its descriptions' (the likeliest `MAX_READINGS`), and the world model is their
+mixture: teacher-forced, each token's probability is the readings' weighted by their posterior given
+the episode so far (`mixture_log_probs`), so a reading the episode contradicts (the plane does not
+move as read) loses its weight within a few tokens; in imagination each trajectory takes one
+reading, in proportion to the prior (`Conditioning.rows_for`). Measured on NewAll-dev with the
+stress set's dev part (docs/language.md): a reading wrong in one field costs far more than a mixture
+that holds the right one.
 
 `hedge` is the rule before (`HedgedEmmaLWM.mixture = False`): a reading the words do not agree
 with becomes the mean prototype of the candidates. The decoder imagines nonsense from a mean over
