@@ -229,6 +229,7 @@ def parser(base: str) -> list[str]:
         "stress tune": "stress set, tuning part (tuned on)",
         "stress dev": "stress set, dev part (its phrasings tuned on since 2026-11-28)",
         "stress heldout": "stress set, held-out part (never tuned on)",
+        "stress written": "stress set, written part (hand-written, never tuned on)",
     }
     lines = ["| descriptions | how many | identity | movement | role |", "|---|---|---|---|---|"]
     for line in (RESULTS / path).read_text().split("\n\n")[0].splitlines():
