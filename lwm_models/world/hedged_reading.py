@@ -447,7 +447,8 @@ class HedgedReading:
     def _tables(self, r: Readings) -> torch.Tensor:
         raise NotImplementedError
 
-    def _readings(self, manual: ManualBatch) -> Readings:
+    def _readings(self, manual: ManualBatch, doubt: float | None = None) -> Readings:
+        """The manual's readings (`readings`), with the model's doubt unless `doubt` is given."""
         if manual.features is None or manual.mask is None or manual.routed is None:
             raise ValueError(f"a {self.kind} model needs the manual's encoded descriptions and their words")
         keys, values = self._read(manual)
@@ -461,23 +462,28 @@ class HedgedReading:
             self.own_weight,
             other_identity=self.other_identity,
             among=manual.among,
-            doubt=self.doubt,
+            doubt=self.doubt if doubt is None else doubt,
         )
 
     def condition(self, manual: ManualBatch) -> Conditioning:
         """One row per manual: the likeliest reading."""
-        r = self._readings(manual)
+        r = self._readings(manual, doubt=0.0)
         firsts = torch.searchsorted(r.owner, torch.arange(len(manual.routed)))
         return Conditioning(id_table=self._tables(r)[firsts])
 
     @torch.inference_mode()
     def condition_on(self, manual: ManualBatch) -> Conditioning:
-        """Every reading of the manual with its prior: imagination gives each trajectory one
-        (`Conditioning.rows_for`), so that n trajectories imagine each possibility in proportion."""
+        """Every reading the words allow with its prior: imagination gives each trajectory one
+        (`Conditioning.rows_for`), so that n trajectories imagine each possibility in proportion.
+        Not the doubted readings: imagination has no episode to weigh them by, and a person who
+        reads the imagined futures (and the read-back drawn from them) should see what their words
+        say; the doubt acts where an episode is observed (`predictions`). With it, 1 of 8 probes
+        followed a reading the words deny and the read-back's movements fell from 98% to 89% right
+        (the dataset's text, 30 NewAll test games)."""
         self.eval()
         if not self.mixture:
             return self.condition(manual)
-        r = self._readings(manual)
+        r = self._readings(manual, doubt=0.0)
         return Conditioning(id_table=self._tables(r), reading_owner=r.owner, reading_log_prior=r.log_prior)
 
     def predictions(
