@@ -106,6 +106,17 @@ def code_fields(codes: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.
     return (codes % GUESSED) // 16, (codes // 4) % 4 - 1, codes % 4 - 1
 
 
+def _field_bits(codes: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """The movement and the role part of words codes (`words_code`): a code less one leaves that
+    field open."""
+    return ((codes // 4) % 4) * 4, codes % 4
+
+
+def _triples_among(among: torch.Tensor) -> torch.Tensor:
+    """[..., 108] bool: the triples whose entity is among the entities `among` [..., 17] allows."""
+    return among[..., _TRIPLE_FIELDS[:, 0].to(among.device)]
+
+
 def candidates(codes: torch.Tensor) -> torch.Tensor:
     """[..., 108] bool: the triples that agree with each description's words (`words_code` [...])."""
     identity, movement, role = code_fields(codes)
@@ -141,7 +152,7 @@ def _checked(
     closest, nearest = prototype_distances(keys, values, proto_keys, proto_values).min(-1)
     allowed = candidates(codes)
     if among is not None:
-        allowed &= among[..., _TRIPLE_FIELDS[:, 0].to(codes.device)]
+        allowed &= _triples_among(among)
     allowed = allowed | ~allowed.any(-1, keepdim=True)  # words that fit no triple leave everything open
     return closest, nearest, allowed, allowed.gather(-1, nearest[..., None]).squeeze(-1)
 
@@ -277,11 +288,11 @@ def readings(
     own_among = agree & ~alone
     other = (said > 0) & (said != read) & ~alone & ~grounded & (other_identity > 0)
     other_allowed = candidates(codes + (read - said) * 16)  # the words, the model's entity
-    # The words may decide a field wrongly: the triples one decided field away keep a prior `doubt`.
-    movement_bits, role_bits = ((codes // 4) % 4) * 4, codes % 4
-    astray = (candidates(codes - movement_bits) | candidates(codes - role_bits)) & ~candidates(codes)
-    if among is not None:
-        astray &= among[..., _TRIPLE_FIELDS[:, 0].to(codes.device)]
+    if doubt > 0:  # the words may decide a field wrongly: the triples one decided field away
+        movement_bits, role_bits = _field_bits(codes)
+        astray = (candidates(codes - movement_bits) | candidates(codes - role_bits)) & ~candidates(codes)
+        if among is not None:
+            astray &= _triples_among(among)
     ks, vs, owner, log_prior = [], [], [], []
     for b in range(keys.shape[0]):
         per_description = []
@@ -389,7 +400,7 @@ def practice_codes(codes: torch.Tensor, rate: float, open_rate: float = 0.5) -> 
     `open_rate`, so that the decoder sees the mean prototypes a hedge gives, the truth averaged
     over what the words leave open, with its reward and movement to learn from."""
     force = torch.rand(codes.shape, device=codes.device) < rate
-    movement_bits, role_bits = ((codes // 4) % 4) * 4, codes % 4
+    movement_bits, role_bits = _field_bits(codes)
     open_movement = force & (torch.rand(codes.shape, device=codes.device) < open_rate)
     open_role = force & (torch.rand(codes.shape, device=codes.device) < open_rate)
     return codes - open_movement * movement_bits - open_role * role_bits, force
@@ -515,7 +526,7 @@ class HedgedReading:
 
     def _stands(self, manual: ManualBatch) -> torch.Tensor:
         """[B, 3]: where the model's own reading is the only one."""
-        return self._readings(manual).alone
+        return self._readings(manual, doubt=0.0).alone  # `alone` does not depend on the doubt
 
     @torch.no_grad()
     def unsure(self, manual: ManualBatch) -> list[dict]:
