@@ -134,6 +134,28 @@ def test_the_encoder_guess_never_answers_what_a_negation_denies():
     assert parse_movement("the hound is bolted to its square", encoder) == "immovable"
 
 
+def test_a_misspelt_short_name_is_read_where_no_keyword_is():
+    from lwm_models.text.parser import _misspelt_identity, parse_identity
+    from lwm_models.world.frozen_text import FrozenTextEncoder
+
+    encoder = FrozenTextEncoder()
+    # Too short for the keywords' typo correction, and no word the encoder knows whole.
+    for text, name in [
+        ("watch out, the dgo chases you and its deadly", "dog"),
+        ("the quen has the message and keeps running away", "queen"),
+        ("the fissh is immobile and has the message", "fish"),
+        ("the thef is the goal", "thief"),
+    ]:
+        assert parse_identity(text) is None, text
+        assert parse_identity(text, encoder) == name, text
+    # Real words one letter from a name ("make": mage, "call": ball, "shop": ship) are not typos.
+    assert _misspelt_identity("make the call at the shop", encoder) is None
+    # One typo from an identity's own name and from another's synonym (robot, robin): the name's.
+    assert _misspelt_identity("the robit stays put", encoder) == "robot"
+    # Two misspelt names: no answer from this stage.
+    assert _misspelt_identity("the dgo and the quen", encoder) is None
+
+
 def test_stress_set_negation_style():
     # The negation style fails without negation handling (tuning part 44% role, held-out 36%
     # before it was written), and the held-out part was never tuned on.

@@ -6,8 +6,9 @@ Identity: the longest keyword match from a hand-written synonym list (wider than
 lexicon, since people write "falcon", "scholar" or "humanoid"; a plural or a pet form such as
 "birdie" counts), earliest in the text on ties. A word one typo away from a keyword (a letter
 swapped, dropped, doubled or changed; five letters or more, swaps only for four) counts as that
-keyword. A description with no known keyword falls back to the nearest identity name in the
-frozen text encoder's embedding space, when an encoder is given.
+keyword. A description with no known keyword falls back, when an encoder is given, to a misspelt
+name (a word the encoder's vocabulary lacks, one typo from a keyword of three letters or more:
+"dgo", "quen"), else to the nearest identity name in the frozen text encoder's embedding space.
 
 Movement and role: ordered keyword rules (negated motion before motion, "away" before "toward",
 enemy cues before goal and message cues), read after the same typo correction. Idioms that hold
@@ -117,18 +118,19 @@ def _vocabulary() -> dict[int, tuple[str, ...]]:
     return {n: tuple(ws) for n, ws in by_len.items()}
 
 
-def _one_typo(word: str, target: str) -> bool:
-    """Is `word` one swap, drop, doubling or change of a letter away from `target`?"""
+def _one_typo(word: str, target: str, shortest: int = 5) -> bool:
+    """Is `word` one swap, drop, doubling or change of a letter away from `target`? A change, drop or
+    doubling counts between words of `shortest` letters or more (a swap at any length)."""
     if word == target:
         return False
     n, m = len(word), len(target)
     if n == m:
         diff = [i for i in range(n) if word[i] != target[i]]
         if len(diff) == 1:
-            return n >= 5
+            return n >= shortest
         i, j = diff if len(diff) == 2 else (0, 0)
         return len(diff) == 2 and j == i + 1 and word[i] == target[j] and word[j] == target[i]
-    if abs(n - m) != 1 or min(n, m) < 5:
+    if abs(n - m) != 1 or min(n, m) < shortest:
         return False
     short, long_ = (word, target) if n < m else (target, word)
     i = 0
@@ -172,15 +174,40 @@ def _find_identity(lowered: str) -> str | None:
 
 def parse_identity(text: str, encoder=None) -> str | None:
     """The identity a description is about: longest keyword, earliest on ties (as written, else
-    after typo correction); else nearest name in the encoder's embedding space (if given); else
-    None."""
+    after typo correction); else, with an encoder, a misspelt name (`_misspelt_identity`) or the
+    nearest name in the encoder's embedding space; else None."""
     lowered = text.lower()
     found = _find_identity(lowered) or _find_identity(normalise(lowered))
     if found is not None:
         return found
     if encoder is not None:
-        return _nearest_identity(text, encoder)
+        return _misspelt_identity(lowered, encoder) or _nearest_identity(text, encoder)
     return None
+
+
+@lru_cache(maxsize=1)
+def _name_words() -> dict[str, str]:
+    """One-word identity keywords of three letters or more, by the identity they name."""
+    return {w: ident for ident, kws in IDENTITY_KEYWORDS.items() for w in kws if " " not in w and len(w) >= 3}
+
+
+def _misspelt_identity(lowered: str, encoder) -> str | None:
+    """The identity of the words that are no word the encoder knows whole (a typo, not "make" or
+    "call") and one typo from a one-word identity keyword, three letters or more ("dgo", "quen",
+    "fissh"); a word one typo from an identity's own name and from another's synonym ("robit":
+    robot, robin) is the name's. None unless the words name exactly one identity this way.
+    Keyword typo correction stops at five letters, since short real words lie one letter from
+    short keywords; a word the encoder's vocabulary lacks is seldom a real word."""
+    names, found = _name_words(), set()
+    for word in dict.fromkeys(re.findall(r"[a-z]+", lowered)):
+        if len(word) < 3 or encoder.knows_word(word):
+            continue
+        near = [w for w in names if _one_typo(word, w, shortest=3)]
+        own = [w for w in near if w == names[w]]  # an identity's own name ("robot")
+        idents = {names[w] for w in own or near}
+        if len(idents) == 1:
+            found |= idents
+    return found.pop() if len(found) == 1 else None
 
 
 def _decide(lowered: str, rules) -> tuple[str | None, list[str]]:

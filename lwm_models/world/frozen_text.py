@@ -55,6 +55,7 @@ class FrozenTextEncoder:
         self.max_tokens = max_tokens
         self._model = None
         self._tokenizer = None
+        self._whole_words: frozenset[str] | None = None
         self._memory: dict[str, np.ndarray] = {}
         self._lock = threading.Lock()
         self._db: sqlite3.Connection | None = None
@@ -89,6 +90,15 @@ class FrozenTextEncoder:
         node that answers language feedback loads it at start."""
         self._load()
         return self
+
+    def knows_word(self, word: str) -> bool:
+        """Is `word` (lowercase) one token of the text model's vocabulary, a whole word and not a
+        piece? The parser takes a word the vocabulary lacks for a possible typo."""
+        with self._lock:
+            if self._whole_words is None:
+                self._load()
+                self._whole_words = frozenset(w for w in self._tokenizer.get_vocab() if not w.startswith("##"))
+        return word in self._whole_words
 
     def _load(self) -> None:
         if self._model is None and self._source is not None:
