@@ -336,6 +336,8 @@ def test_the_rules_benchmark_refuses_what_it_cannot_compare(capsys):
     assert "must be in (0, 1]" in capsys.readouterr().err
     assert bench.main(["--data", "data/none", "--rules", "mixture:0.8:1"]) == 2
     assert "[0, 1)" in capsys.readouterr().err
+    assert bench.main(["--data", "data/none", "--rules", "mixture:0.8:0.15:0.05:2.5"]) == 2
+    assert "whole number" in capsys.readouterr().err
     assert bench.main(["--data", "data/none", "--rules", "median"]) == 2
     assert "unknown rule 'median'" in capsys.readouterr().err
     gpthard = "lwm_models/checkpoints/gpthard"
@@ -426,7 +428,7 @@ def test_a_hedged_model_grounds_its_words_only_when_its_config_says_so(hedged, t
                          splits=("newall-dev",))  # fmt: skip
         encoder = model.frozen_text_encoder()
         data = SplitTokens(tmp_path, "newall-dev", encoder, model.route)
-        redraw_manuals(data, stress_pools("typos", "dev"), encoder, 0)
+        redraw_manuals(data, stress_pools("rare-synonyms", "dev"), encoder, 0)  # names guessed wrongly
         tokens, lengths, episodes = next(iter(data.full_episodes(24, 24)))
         grounded, among = ground_words(episodes.routed, tokens[:, torch.as_tensor(ID_SLOTS)])
         changed = (grounded != episodes.routed).any(-1) | ~among.flatten(1).all(-1)
@@ -506,3 +508,36 @@ def test_doubt_keeps_the_truth_among_the_readings_where_the_words_decide_a_field
     bound = -3 * math.log(1 - 0.02) + 1e-3
     assert bool((doubting <= sure + bound).all())
     assert bool((nll(episodes, 0.02) <= nll(episodes, 0.0) + bound).all())
+
+
+def test_more_readings_keep_the_truth_where_the_words_state_two_movements_wrongly(hedged, tmp_path):
+    from lwm_models.data.dataset import generate_dataset
+    from lwm_models.text.pools import DescriptionPools
+    from lwm_models.world.training_data import SplitTokens
+
+    model, _ = hedged
+    generate_dataset(tmp_path, DescriptionPools.generated(), max_games=8, train_episodes_per_game=2,
+                     splits=("newall-dev",))  # fmt: skip
+    data = SplitTokens(tmp_path, "newall-dev", model.frozen_text_encoder(), model.route)
+    tokens, lengths, episodes = next(iter(data.full_episodes(8, 8)))
+    moves = (episodes.routed // 4) % 4
+    assert bool((moves > 0).all())  # the generator's words decide every movement
+    wrong = replace(episodes, routed=episodes.routed.clone())
+    wrong.routed[:, :2] += (moves[:, :2] % 3 + 1 - moves[:, :2]) * 4  # two descriptions' movements: others
+
+    def nll(most: int) -> torch.Tensor:
+        saved = model.doubt, model.max_readings
+        model.doubt, model.max_readings = 0.05, most
+        try:
+            with torch.no_grad():
+                out = model.predictions(tokens, lengths, wrong)
+        finally:
+            model.doubt, model.max_readings = saved
+        return -sum((lp.gather(-1, t[..., None]).squeeze(-1) * v).sum(1) for lp, t, v in out.values())
+
+    # Each of the three descriptions has 5 readings (its words and 4 one field away): 125 in all.
+    # Among the 27 likeliest, a manual with two stated movements wrong seldom holds the truth.
+    few, every = nll(27), nll(125)
+    assert float(every.sum()) < float(few.sum()) - 10
+    # More readings cost at most the prior the 27 lose to the others (about 1.5% of it here).
+    assert bool((every <= few + 0.05).all())

@@ -150,4 +150,6 @@ def load_checkpoint(directory: str | Path, kind: str | None = None) -> tuple[Wor
         model.mixture = config["hedged_reading"].get("rule", "mixture") == "mixture"
         model.ground = bool(config["hedged_reading"].get("ground", False))  # words grounded on the board
         model.doubt = float(config["hedged_reading"].get("doubt", 0.0))  # words that may decide wrongly
+        # readings of one manual at most, teacher-forced (the likeliest by prior)
+        model.max_readings = int(config["hedged_reading"].get("max_readings", model.max_readings))
     return model.eval(), config

@@ -23,7 +23,9 @@ model's entity stays a reading too (prior `OTHER_IDENTITY`). Words decide a fiel
 then (a person's "it isn't the goal, it's the message" can read as the goal), so the triples one
 decided field away from the words keep a small prior (`doubt`, shared among them; a checkpoint's
 config sets it, `hedged_reading.doubt`) and the episode can show the truth. A manual's readings are
-the combinations of its descriptions' (the likeliest `MAX_READINGS`), and the world model is their
+the combinations of its descriptions' (the likeliest `MAX_READINGS`; where an episode weighs them,
+the checkpoint's `hedged_reading.max_readings`, since with the doubt a manual whose words state two
+fields wrongly has its truth far down the list), and the world model is their
 mixture: teacher-forced, each token's probability is the readings' weighted by their posterior given
 the episode so far (`mixture_log_probs`), so a reading the episode contradicts (the plane does not
 move as read) loses its weight within a few tokens; in imagination each trajectory takes one
@@ -429,6 +431,10 @@ class HedgedReading:
         # The prior of the triples one decided field away from the words (`readings`); a checkpoint's
         # config sets it (`hedged_reading.doubt`).
         self.doubt = 0.0
+        # The readings of one manual kept where an episode weighs them (the likeliest by prior,
+        # `readings`); a checkpoint's config may set it (`hedged_reading.max_readings`). Each costs a
+        # decoder pass over the episode.
+        self.max_readings = MAX_READINGS
         # Ground the words' entities on the board before reading (`ground_words`); a checkpoint's
         # config turns it on (`hedged_reading.ground`).
         self.ground = False
@@ -458,8 +464,10 @@ class HedgedReading:
     def _tables(self, r: Readings) -> torch.Tensor:
         raise NotImplementedError
 
-    def _readings(self, manual: ManualBatch, doubt: float | None = None) -> Readings:
-        """The manual's readings (`readings`), with the model's doubt unless `doubt` is given."""
+    def _readings(self, manual: ManualBatch, observed: bool = False) -> Readings:
+        """The manual's readings (`readings`). `observed`: an episode will weigh them (teacher-forced
+        predictions), so with the model's doubt and as many as its `max_readings`; else what the
+        words allow, the `MAX_READINGS` likeliest (imagination, the page's status)."""
         if manual.features is None or manual.mask is None or manual.routed is None:
             raise ValueError(f"a {self.kind} model needs the manual's encoded descriptions and their words")
         keys, values = self._read(manual)
@@ -471,14 +479,15 @@ class HedgedReading:
             self.proto_values,
             float(self.stand_distance),
             self.own_weight,
+            max_readings=self.max_readings if observed else MAX_READINGS,
             other_identity=self.other_identity,
             among=manual.among,
-            doubt=self.doubt if doubt is None else doubt,
+            doubt=self.doubt if observed else 0.0,
         )
 
     def condition(self, manual: ManualBatch) -> Conditioning:
         """One row per manual: the likeliest reading."""
-        r = self._readings(manual, doubt=0.0)
+        r = self._readings(manual)
         firsts = torch.searchsorted(r.owner, torch.arange(len(manual.routed)))
         return Conditioning(id_table=self._tables(r)[firsts])
 
@@ -494,7 +503,7 @@ class HedgedReading:
         self.eval()
         if not self.mixture:
             return self.condition(manual)
-        r = self._readings(manual, doubt=0.0)
+        r = self._readings(manual)
         return Conditioning(id_table=self._tables(r), reading_owner=r.owner, reading_log_prior=r.log_prior)
 
     def predictions(
@@ -504,7 +513,7 @@ class HedgedReading:
         (`mixture_log_probs`: the log-probabilities stand for the logits)."""
         if self.training or not self.mixture:
             return super().predictions(tokens, lengths, manual)
-        r = self._readings(self.on_board(manual, tokens[:, torch.as_tensor(ID_SLOTS)]))
+        r = self._readings(self.on_board(manual, tokens[:, torch.as_tensor(ID_SLOTS)]), observed=True)
         tables = self._tables(r)
         parts: dict[str, list[torch.Tensor]] = {"obs": [], "reward": [], "done": []}
         for lo in range(0, len(r.owner), MIXTURE_ROWS):
@@ -526,7 +535,7 @@ class HedgedReading:
 
     def _stands(self, manual: ManualBatch) -> torch.Tensor:
         """[B, 3]: where the model's own reading is the only one."""
-        return self._readings(manual, doubt=0.0).alone  # `alone` does not depend on the doubt
+        return self._readings(manual).alone  # `alone` does not depend on the doubt
 
     @torch.no_grad()
     def unsure(self, manual: ManualBatch) -> list[dict]:
