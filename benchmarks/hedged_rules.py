@@ -9,7 +9,8 @@ Rules: "mean" (EMMA-LWM only: a description the words do not agree with is read 
 prototype of what they allow) and "mixture:W:Q" (every reading the words allow, the model's own with
 prior W and the model's entity, where the words name another, with prior Q; "mixture:W:Q:D" keeps
 the triples one decided field away from the words at prior D, and "mixture:W:Q:D:N" keeps a
-manual's N likeliest readings instead of `MAX_READINGS`; `hedged_reading.readings`), either
+manual's N likeliest readings instead of `MAX_READINGS`, "mixture:W:Q:D:N:K" only K of them after
+the first `PRUNE_STEPS` steps, the likeliest given those; `hedged_reading.readings`), either
 with "+ground" (the words' entities grounded on each episode's board first); `--stand-quantiles`
 runs each rule with each stand distance. Observational, which reads no text, is the line to beat.
 Every figure comes from this one run, so the rules are compared on the same episodes and code.
@@ -50,7 +51,8 @@ def set_rule(model, rule: str) -> None:
     """Read with `rule`: "mean", or "mixture:W:Q:D:N" (W the prior of the model's own reading, default
     0.8; Q that of its entity where the words name another, default 0.15; D that of the triples one
     decided field away from the words, default 0; N the readings of a manual kept, default
-    `MAX_READINGS`); "+ground" after either
+    `MAX_READINGS`; K of them those predicting after the first `PRUNE_STEPS` steps, default 0: all);
+    "+ground" after either
     grounds the words' entities on each episode's board first (`hedged_reading.ground_words`)."""
     rule, plus, extra = rule.partition("+")
     if plus and extra != "ground":
@@ -62,19 +64,19 @@ def set_rule(model, rule: str) -> None:
             raise LwmError(f"a {model.kind} model has no mean-prototype rule; give mixture:W[:Q]")
         model.mixture = False
         return
-    if name != "mixture" or len(numbers) > 4:
-        raise LwmError(f"unknown rule {rule!r}: give mean or mixture:W[:Q[:D[:N]]] (priors, 0-1; N readings)")
+    if name != "mixture" or len(numbers) > 5:
+        raise LwmError(f"unknown rule {rule!r}: give mean or mixture:W[:Q[:D[:N[:K]]]] (priors, 0-1; readings)")
     try:
         weights = [float(x) for x in numbers]
     except ValueError:
         raise LwmError(f"mixture:W:Q needs numbers, got {rule!r}") from None
-    own, other, doubt, most = (weights + [0.8, 0.15, 0.0, MAX_READINGS][len(weights) :])[:4]
+    own, other, doubt, most, keep = (weights + [0.8, 0.15, 0.0, MAX_READINGS, 0][len(weights) :])[:5]
     if not (0.0 < own <= 1.0 and 0.0 <= other < 1.0 and 0.0 <= doubt < 1.0):
         raise LwmError(f"the priors must be in (0, 1], [0, 1) and [0, 1), got {own}, {other} and {doubt}")
-    if most < 1 or most != int(most):
-        raise LwmError(f"the readings kept must be a whole number, 1 or more, got {most}")
+    if most < 1 or most != int(most) or keep < 0 or keep != int(keep):
+        raise LwmError(f"the readings kept must be whole numbers (N 1 or more, K 0 or more), got {most} and {keep}")
     model.mixture, model.own_weight, model.other_identity, model.doubt = True, own, other, doubt
-    model.max_readings = int(most)
+    model.max_readings, model.keep_readings = int(most), int(keep)
 
 
 def main(argv: list[str] | None = None) -> int:

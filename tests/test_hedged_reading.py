@@ -512,6 +512,9 @@ def test_doubt_keeps_the_truth_among_the_readings_where_the_words_decide_a_field
 
 def test_more_readings_keep_the_truth_where_the_words_state_two_movements_wrongly(hedged, tmp_path):
     from lwm_models.data.dataset import generate_dataset
+    from lwm_models.world.base import _targets_layout
+    from lwm_models.world.hedged_reading import PRUNE_STEPS
+    from lwm_models.world.tokens import BLOCK, SLOT_DONE, SLOT_OBS, SLOT_REWARD
     from lwm_models.text.pools import DescriptionPools
     from lwm_models.world.training_data import SplitTokens
 
@@ -525,19 +528,31 @@ def test_more_readings_keep_the_truth_where_the_words_state_two_movements_wrongl
     wrong = replace(episodes, routed=episodes.routed.clone())
     wrong.routed[:, :2] += (moves[:, :2] % 3 + 1 - moves[:, :2]) * 4  # two descriptions' movements: others
 
-    def nll(most: int) -> torch.Tensor:
-        saved = model.doubt, model.max_readings
-        model.doubt, model.max_readings = 0.05, most
+    def predict(most: int, keep: int = 0) -> dict:
+        saved = model.doubt, model.max_readings, model.keep_readings
+        model.doubt, model.max_readings, model.keep_readings = 0.05, most, keep
         try:
             with torch.no_grad():
-                out = model.predictions(tokens, lengths, wrong)
+                return model.predictions(tokens, lengths, wrong)
         finally:
-            model.doubt, model.max_readings = saved
+            model.doubt, model.max_readings, model.keep_readings = saved
+
+    def nll(out: dict) -> torch.Tensor:
         return -sum((lp.gather(-1, t[..., None]).squeeze(-1) * v).sum(1) for lp, t, v in out.values())
 
     # Each of the three descriptions has 5 readings (its words and 4 one field away): 125 in all.
     # Among the 27 likeliest, a manual with two stated movements wrong seldom holds the truth.
-    few, every = nll(27), nll(125)
-    assert float(every.sum()) < float(few.sum()) - 10
+    few, every = nll(predict(27)), predict(125)
+    assert float(nll(every).sum()) < float(few.sum()) - 10
     # More readings cost at most the prior the 27 lose to the others (about 1.5% of it here).
-    assert bool((every <= few + 0.05).all())
+    assert bool((nll(every) <= few + 0.05).all())
+    # The first steps show the movements: 9 readings kept after them predict the rest almost as
+    # all 125 do, and the first steps' predictions are all 125 readings' mixture (a pass over the
+    # first steps alone).
+    pruned = predict(125, keep=9)
+    assert bool((nll(pruned) <= nll(every) + 0.05).all())
+    early = (1 + PRUNE_STEPS) * BLOCK
+    for kind, (lp, _, _) in pruned.items():
+        slot = {"obs": SLOT_OBS, "reward": SLOT_REWARD, "done": SLOT_DONE}[kind]
+        n = int((_targets_layout(tokens.shape[1])[slot] + 1 < early).sum())
+        assert torch.allclose(lp[:, :n], every[kind][0][:, :n], atol=1e-4)  # a shorter pass's rounding

@@ -152,4 +152,6 @@ def load_checkpoint(directory: str | Path, kind: str | None = None) -> tuple[Wor
         model.doubt = float(config["hedged_reading"].get("doubt", 0.0))  # words that may decide wrongly
         # readings of one manual at most, teacher-forced (the likeliest by prior)
         model.max_readings = int(config["hedged_reading"].get("max_readings", model.max_readings))
+        # of them, those predicting past the first steps (the likeliest then; 0: all)
+        model.keep_readings = int(config["hedged_reading"].get("keep_readings", model.keep_readings))
     return model.eval(), config

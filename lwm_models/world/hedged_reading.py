@@ -187,6 +187,7 @@ OTHER_IDENTITY = 0.15  # prior of the model's identity where the words name anot
 DOUBT = 0.05  # prior of the triples one decided field away from the words (scripts/hedged_checkpoint.py)
 MAX_READINGS = 27  # readings of one manual at most (the likeliest, by prior)
 MIXTURE_ROWS = 256  # reading rows per decoder pass in teacher-forced evaluation (memory)
+PRUNE_STEPS = 2  # steps every reading predicts before a model with `keep_readings` keeps the likeliest
 
 
 @dataclass
@@ -202,6 +203,17 @@ class Readings:
     log_prior: torch.Tensor
     alone: torch.Tensor
     own_among: torch.Tensor
+
+    def likeliest(self, score: torch.Tensor, k: int) -> Readings:
+        """Each manual's `k` readings of highest `score` [R], in their order (the priors are kept as
+        they were: a mixture weighs its readings relative to each other)."""
+        keep = torch.zeros(len(self.owner), dtype=torch.bool)
+        for m in range(int(self.owner.max()) + 1):
+            rows = torch.nonzero(self.owner == m).flatten()
+            keep[rows[score[rows].topk(min(k, len(rows))).indices]] = True
+        return replace(
+            self, keys=self.keys[keep], values=self.values[keep], owner=self.owner[keep], log_prior=self.log_prior[keep]
+        )
 
 
 def _options(
@@ -435,6 +447,9 @@ class HedgedReading:
         # `readings`); a checkpoint's config may set it (`hedged_reading.max_readings`). Each costs a
         # decoder pass over the episode.
         self.max_readings = MAX_READINGS
+        # Where an episode weighs them: how many of a manual's readings go on predicting after its
+        # first `PRUNE_STEPS` steps (the likeliest then); 0: all (`hedged_reading.keep_readings`).
+        self.keep_readings = 0
         # Ground the words' entities on the board before reading (`ground_words`); a checkpoint's
         # config turns it on (`hedged_reading.ground`).
         self.ground = False
@@ -510,12 +525,48 @@ class HedgedReading:
         self, tokens: torch.Tensor, lengths: torch.Tensor, manual: ManualBatch
     ) -> dict[str, tuple[torch.Tensor, torch.Tensor, torch.Tensor]]:
         """Teacher-forced predictions; out of training, of the readings' mixture
-        (`mixture_log_probs`: the log-probabilities stand for the logits)."""
+        (`mixture_log_probs`: the log-probabilities stand for the logits). With `keep_readings`, every
+        reading predicts the first `PRUNE_STEPS` steps, and only each manual's `keep_readings`
+        likeliest given them (prior times likelihood) predict the rest: a reading whose movements
+        the first steps contradict would cost a decoder pass over the episode for nothing. Each
+        token is still predicted from the tokens before it only."""
         if self.training or not self.mixture:
             return super().predictions(tokens, lengths, manual)
         r = self._readings(self.on_board(manual, tokens[:, torch.as_tensor(ID_SLOTS)]), observed=True)
+        layout = _targets_layout(tokens.shape[1])
+        slots = {"obs": SLOT_OBS, "reward": SLOT_REWARD, "done": SLOT_DONE}
+        positions = {k: torch.as_tensor(layout[slot]) for k, slot in slots.items()}
+        targets = {k: tokens[:, positions[k] + 1] for k in slots}
+        valid = {k: (p + 1)[None, :] < lengths.to(tokens.device)[:, None] * BLOCK for k, p in positions.items()}
+        cut = (1 + PRUNE_STEPS) * BLOCK
+        first = None
+        if self.keep_readings and tokens.shape[1] > cut and bool((r.owner.bincount() > self.keep_readings).any()):
+            head = {k: p[p + 1 < cut] for k, p in positions.items()}
+            n = {k: len(p) for k, p in head.items()}
+            first, likelihood = self._mixture(
+                tokens[:, :cut], lengths.clamp(max=cut // BLOCK), r, head,
+                {k: t[:, : n[k]] for k, t in targets.items()}, {k: v[:, : n[k]] for k, v in valid.items()},
+            )  # fmt: skip
+            r = r.likeliest(r.log_prior + likelihood, self.keep_readings)
+        mixed, _ = self._mixture(tokens, lengths, r, positions, targets, valid)
+        if first is not None:
+            for k, early in first.items():
+                mixed[k][:, : early.shape[1]] = early
+        return {k: (mixed[k], targets[k], valid[k]) for k in slots}
+
+    def _mixture(
+        self,
+        tokens: torch.Tensor,
+        lengths: torch.Tensor,
+        r: Readings,
+        positions: dict[str, torch.Tensor],
+        targets: dict[str, torch.Tensor],
+        valid: dict[str, torch.Tensor],
+    ) -> tuple[dict[str, torch.Tensor], torch.Tensor]:
+        """The readings' mixture at `positions` (per kind, [B, P, V]), and each reading's
+        log-likelihood of the true tokens there [R]."""
         tables = self._tables(r)
-        parts: dict[str, list[torch.Tensor]] = {"obs": [], "reward": [], "done": []}
+        parts: dict[str, list[torch.Tensor]] = {k: [] for k in positions}
         for lo in range(0, len(r.owner), MIXTURE_ROWS):
             rows = r.owner[lo : lo + MIXTURE_ROWS]
             own = WorldModel.predictions_given(
@@ -523,15 +574,12 @@ class HedgedReading:
             )
             for k, (logits, _, _) in own.items():
                 parts[k].append(torch.log_softmax(logits, -1))
-        layout = _targets_layout(tokens.shape[1])
-        slots = {"obs": SLOT_OBS, "reward": SLOT_REWARD, "done": SLOT_DONE}
-        positions = {k: torch.as_tensor(layout[slot]) for k, slot in slots.items()}
-        targets = {k: tokens[:, positions[k] + 1] for k in slots}
         log_probs = {k: torch.cat(v) for k, v in parts.items()}
         per_row = {k: t[r.owner] for k, t in targets.items()}
-        mixed = mixture_log_probs(log_probs, per_row, positions, r.owner, r.log_prior)
-        valid = lengths.to(tokens.device)[:, None] * BLOCK
-        return {k: (mixed[k], targets[k], (positions[k] + 1)[None, :] < valid) for k in slots}
+        likelihood = sum(
+            (log_probs[k].gather(-1, per_row[k][..., None]).squeeze(-1) * valid[k][r.owner]).sum(1) for k in positions
+        )
+        return mixture_log_probs(log_probs, per_row, positions, r.owner, r.log_prior), likelihood
 
     def _stands(self, manual: ManualBatch) -> torch.Tensor:
         """[B, 3]: where the model's own reading is the only one."""
