@@ -142,8 +142,10 @@ def main(argv: list[str] | None = None) -> int:
         if quantile is not None:
             model.fit_stand_distance(encoder, train_texts, quantile)
             rule = f"{rule} stand {quantile:g}"
+        rule_began = time.perf_counter()
         row = {s: evaluate_loss(model, d, limit=args.episodes)["total"] for s, d in sources.items()}
-        styles = [v for s, v in row.items() if s != "dataset"]
+        row["loss_seconds"] = round(time.perf_counter() - rule_began, 1)  # what the rule costs to evaluate
+        styles = [v for s, v in row.items() if s not in ("dataset", "loss_seconds")]
         row["styles_mean"], row["styles_worst"] = float(np.mean(styles)), float(np.max(styles))
         if args.imagination_episodes:
             im = imagination_metrics(model, sources["dataset"], args.imagination_episodes, args.seed)
