@@ -25,7 +25,14 @@ sys.path.insert(0, str(ROOT))
 from lwm_models.errors import LwmError  # noqa: E402
 from lwm_models.world.checkpoint import load_checkpoint, read_config, save_checkpoint  # noqa: E402
 from lwm_models.world.hedged_gpthard import HedgedGPTHardLWM  # noqa: E402
-from lwm_models.world.hedged_reading import DOUBT, PROTOTYPE_TEXTS, STAND_QUANTILE, HedgedEmmaLWM  # noqa: E402
+from lwm_models.world.hedged_reading import (  # noqa: E402
+    DOUBT,
+    MAX_READINGS,
+    PROTOTYPE_TEXTS,
+    PRUNE_STEPS,
+    STAND_QUANTILE,
+    HedgedEmmaLWM,
+)
 from lwm_models.world.reader_tuning import dataset_descriptions  # noqa: E402
 from lwm_models.world.training_data import SplitTokens  # noqa: E402
 
@@ -56,7 +63,23 @@ def main() -> int:
         default=DOUBT,
         help=f"prior of the triples one decided field away from the words (hedged_reading.readings; default {DOUBT})",
     )
+    ap.add_argument(
+        "--max-readings",
+        type=int,
+        default=MAX_READINGS,
+        help=f"readings of a manual kept where an episode weighs them (default {MAX_READINGS})",
+    )
+    ap.add_argument(
+        "--keep-readings",
+        type=int,
+        default=0,
+        help=f"of them, those that predict after an episode's first {PRUNE_STEPS} steps, the likeliest then "
+        "(default 0: all)",
+    )
     args = ap.parse_args()
+    if args.max_readings < 1 or args.keep_readings < 0:
+        print("hedged_checkpoint: --max-readings must be 1 or more and --keep-readings 0 or more", file=sys.stderr)
+        return 2
     hedged_kinds = {"emma": (HedgedEmmaLWM, STAND_QUANTILE), "gpthard": (HedgedGPTHardLWM, 0.0)}
     try:
         model, config = load_checkpoint(args.source)
@@ -86,6 +109,8 @@ def main() -> int:
         "rule": "mixture",  # read every way the words allow (hedged_reading.readings)
         "ground": args.ground,
         "doubt": args.doubt,
+        "max_readings": args.max_readings,
+        "keep_readings": args.keep_readings,
     }
     save_checkpoint(hedged, args.out, meta, dtype=torch.float16)
     print(f"wrote {args.out}")
