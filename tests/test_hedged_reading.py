@@ -512,10 +512,10 @@ def test_doubt_keeps_the_truth_among_the_readings_where_the_words_decide_a_field
 
 def test_more_readings_keep_the_truth_where_the_words_state_two_movements_wrongly(hedged, tmp_path):
     from lwm_models.data.dataset import generate_dataset
+    from lwm_models.text.pools import DescriptionPools
     from lwm_models.world.base import _targets_layout
     from lwm_models.world.hedged_reading import PRUNE_STEPS
     from lwm_models.world.tokens import BLOCK, SLOT_DONE, SLOT_OBS, SLOT_REWARD
-    from lwm_models.text.pools import DescriptionPools
     from lwm_models.world.training_data import SplitTokens
 
     model, _ = hedged

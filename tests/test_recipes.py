@@ -47,10 +47,13 @@ def test_a_world_model_recipe_parses_to_what_its_checkpoint_was_trained_with(nam
     config = json.loads((CHECKPOINTS / SHIPPED[name] / "config.json").read_text())
     command = _recipe(name)["command"]
     if command == "scripts/hedged_checkpoint.py":  # nothing trained: another checkpoint plus prototypes
-        from lwm_models.world.hedged_reading import DOUBT, PROTOTYPE_TEXTS, STAND_QUANTILE
+        from lwm_models.world.hedged_reading import DOUBT, MAX_READINGS, PROTOTYPE_TEXTS, STAND_QUANTILE
 
         made = {k: v for k, v in config["hedged_reading"].items() if k != "stand_distance"}  # fitted, not given
+        made = {"max_readings": MAX_READINGS, "keep_readings": 0, **made}  # what the loader takes where unsaid
         assert made == {
+            "max_readings": MAX_READINGS,  # unless the recipe gives another
+            "keep_readings": 0,  # unless the recipe prunes the readings after the first steps
             "prototype_texts": PROTOTYPE_TEXTS,
             "stand_quantile": STAND_QUANTILE,  # unless the recipe gives another (GPTHard: 0)
             "ground": False,  # unless the recipe grounds the words on the board
