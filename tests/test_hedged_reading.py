@@ -469,18 +469,23 @@ def test_the_server_conditions_on_the_words_as_grounded_and_computes_them_once(h
         srv.model.ground = False
 
 
-def test_doubt_keeps_the_truth_among_the_readings_where_the_words_decide_a_field_wrongly(hedged, tmp_path):
-    import math
-
+def _generated_episodes(model, tmp_path):
+    """8 NewAll-dev episodes of a small generated dataset, as (tokens, lengths, manuals)."""
     from lwm_models.data.dataset import generate_dataset
     from lwm_models.text.pools import DescriptionPools
     from lwm_models.world.training_data import SplitTokens
 
-    model, _ = hedged
     generate_dataset(tmp_path, DescriptionPools.generated(), max_games=8, train_episodes_per_game=2,
                      splits=("newall-dev",))  # fmt: skip
     data = SplitTokens(tmp_path, "newall-dev", model.frozen_text_encoder(), model.route)
-    tokens, lengths, episodes = next(iter(data.full_episodes(8, 8)))
+    return next(iter(data.full_episodes(8, 8)))
+
+
+def test_doubt_keeps_the_truth_among_the_readings_where_the_words_decide_a_field_wrongly(hedged, tmp_path):
+    import math
+
+    model, _ = hedged
+    tokens, lengths, episodes = _generated_episodes(model, tmp_path)
     roles = episodes.routed % 4
     assert bool((roles > 0).all())  # the generator's words decide every role
     wrong = replace(episodes, routed=episodes.routed.clone())
@@ -511,18 +516,12 @@ def test_doubt_keeps_the_truth_among_the_readings_where_the_words_decide_a_field
 
 
 def test_more_readings_keep_the_truth_where_the_words_state_two_movements_wrongly(hedged, tmp_path):
-    from lwm_models.data.dataset import generate_dataset
-    from lwm_models.text.pools import DescriptionPools
     from lwm_models.world.base import _targets_layout
     from lwm_models.world.hedged_reading import PRUNE_STEPS
     from lwm_models.world.tokens import BLOCK, SLOT_DONE, SLOT_OBS, SLOT_REWARD
-    from lwm_models.world.training_data import SplitTokens
 
     model, _ = hedged
-    generate_dataset(tmp_path, DescriptionPools.generated(), max_games=8, train_episodes_per_game=2,
-                     splits=("newall-dev",))  # fmt: skip
-    data = SplitTokens(tmp_path, "newall-dev", model.frozen_text_encoder(), model.route)
-    tokens, lengths, episodes = next(iter(data.full_episodes(8, 8)))
+    tokens, lengths, episodes = _generated_episodes(model, tmp_path)
     moves = (episodes.routed // 4) % 4
     assert bool((moves > 0).all())  # the generator's words decide every movement
     wrong = replace(episodes, routed=episodes.routed.clone())
