@@ -48,7 +48,7 @@ CHECKPOINTS = ROOT / "lwm_models" / "checkpoints"
 
 
 def set_rule(model, rule: str) -> None:
-    """Read with `rule`: "mean", or "mixture:W:Q:D:N" (W the prior of the model's own reading, default
+    """Read with `rule`: "mean", or "mixture:W:Q:D:N:K" (W the prior of the model's own reading, default
     0.8; Q that of its entity where the words name another, default 0.15; D that of the triples one
     decided field away from the words, default 0; N the readings of a manual kept, default
     `MAX_READINGS`; K of them those predicting after the first `PRUNE_STEPS` steps, default 0: all);
@@ -145,7 +145,7 @@ def main(argv: list[str] | None = None) -> int:
         rule_began = time.perf_counter()
         row = {s: evaluate_loss(model, d, limit=args.episodes)["total"] for s, d in sources.items()}
         row["loss_seconds"] = round(time.perf_counter() - rule_began, 1)  # what the rule costs to evaluate
-        styles = [v for s, v in row.items() if s not in ("dataset", "loss_seconds")]
+        styles = [row[s] for s in sources if s != "dataset"]
         row["styles_mean"], row["styles_worst"] = float(np.mean(styles)), float(np.max(styles))
         if args.imagination_episodes:
             im = imagination_metrics(model, sources["dataset"], args.imagination_episodes, args.seed)
