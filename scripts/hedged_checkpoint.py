@@ -8,7 +8,8 @@ descriptions; none for GPTHard, world/hedged_gpthard.py). Nothing is trained; it
         --source lwm_models/checkpoints/emma-lwm-reader --out lwm_models/checkpoints/emma-lwm-hedged \\
         --stand-quantile 0 --ground
     .venv/bin/python scripts/hedged_checkpoint.py --data data/human \\
-        --source lwm_models/checkpoints/gpthard --out lwm_models/checkpoints/gpthard-hedged --ground --doubt 0
+        --source lwm_models/checkpoints/gpthard --out lwm_models/checkpoints/gpthard-hedged --ground \
+        --max-readings 125 --keep-readings 9
 """
 
 from __future__ import annotations
