@@ -111,8 +111,9 @@ def test_rows_cut_into_groups_on_lanes_sample_what_one_group_samples(shipped, st
     cut = run(model, manual, first, "speculative", seed=3, stop_on_done=False)
     assert ran and set(ran) == {min(lanes.count, len(first) // speculative.MIN_GROUP)}
     monkeypatch.setattr(speculative, "MIN_GROUP", len(first) + 1)
+    cut_runs = len(ran)
     whole = run(model, manual, first, "speculative", seed=3, stop_on_done=False)
-    assert len(ran) == STEPS  # the whole group ran on the caller's thread
+    assert len(ran) == cut_runs  # the whole group ran on the caller's thread
     assert_same_tokens(cut, whole)
     np.testing.assert_allclose(cut.token_probs, whole.token_probs, rtol=0, atol=PROB_BOUND)
 
@@ -143,9 +144,50 @@ def test_the_draft_decides_speed_not_tokens(shipped, starts, monkeypatch):
 
     right = calls_per_step()
     monkeypatch.setattr(speculative, "draft_block", wrong)
-    fast = run(model, manual, starts, "speculative", seed=2)
-    assert_same_tokens(fast, reference)
+    # A step at a time, so that every step drafts with `draft_block` (a whole run drafts its later
+    # steps in the scripted graph).
+    rollout = StepwiseImagination(model, manual, starts, len(starts), STEPS, seed=2, decoding="speculative")
+    actions = np.random.default_rng(2).integers(5, size=(len(starts), STEPS))
+    while not rollout.finished:
+        rollout.step(actions[rollout.active, rollout.t])
+    assert_same_tokens(rollout.result(), reference)
     assert right < calls_per_step() < speculative.STEP_TOKENS / 2
+
+
+@pytest.mark.parametrize("drift", [0, 1])
+@pytest.mark.parametrize("stop_on_done", [True, False], ids=["to-done", "past-done"])
+def test_a_whole_run_samples_what_steps_sample(shipped, starts, stop_on_done, drift, monkeypatch):
+    # A whole run of known actions (`StepwiseImagination.run`) takes every step in the scripted
+    # graph, a row starting its next step once no row of its group is more than `drift` steps
+    # behind: the tokens of stepping all rows together; with a drift, in fewer calls.
+    model, manual = shipped
+    first = np.concatenate([starts] * 2)
+    actions = np.random.default_rng(7).integers(5, size=(len(first), STEPS))
+    monkeypatch.setattr(speculative, "DRIFT", drift)
+
+    def imagined(whole: bool):
+        rollout = StepwiseImagination(model, manual, first, len(first), STEPS, seed=7, stop_on_done=stop_on_done)
+        if whole:
+            rollout.run(actions)
+        while not rollout.finished:
+            rollout.step(actions[rollout.active, rollout.t])
+        assert rollout.finished and not (stop_on_done and rollout.dones[rollout.active].any())
+        return rollout.result(), rollout._rows.calls
+
+    (ahead, ahead_calls), (stepped, stepped_calls) = imagined(True), imagined(False)
+    assert_same_tokens(ahead, stepped)
+    np.testing.assert_allclose(ahead.token_probs, stepped.token_probs, rtol=0, atol=PROB_BOUND)
+    assert (ahead.lengths < STEPS + 1).any() == stop_on_done  # some trajectory ended early
+    assert ahead_calls <= stepped_calls and (drift == 0 or ahead_calls < stepped_calls)
+
+
+def test_a_whole_run_checks_its_actions(shipped, starts):
+    model, manual = shipped
+    rollout = StepwiseImagination(model, manual, starts, len(starts), STEPS, seed=0)
+    with pytest.raises(ValueError, match="actions"):
+        rollout.run(np.zeros((len(starts), STEPS - 1), dtype=np.int64))
+    with pytest.raises(ValueError, match="actions"):
+        rollout.run(np.full((len(starts), STEPS), 5))
 
 
 def test_continuous_batching_on_the_fast_path(shipped, starts):

@@ -365,7 +365,7 @@ class StepwiseImagination:
         if temperature <= 0:
             raise ValueError("temperature must be > 0")
         first = _check_inputs(first_obs, n)
-        self.n, self.max_steps, self.stop_on_done = n, max_steps, stop_on_done
+        self.n, self.max_steps, self.stop_on_done, self.constrained = n, max_steps, stop_on_done, constrained
         self._trajectories = so_far = Trajectories(first, max_steps)
         # Its arrays, written in place at each step (see the class docstring).
         self.observations, self.actions, self.rewards = so_far.observations, so_far.actions, so_far.rewards
@@ -403,6 +403,27 @@ class StepwiseImagination:
             if len(self.active):
                 self._rows.keep(torch.from_numpy(keep))
         return active
+
+    def run(self, actions: np.ndarray) -> None:
+        """Every running trajectory takes all its remaining actions [running, steps left], to the end.
+        The fast paths, unconstrained, let each row go on to its next step without waiting for the
+        others (`FlatDecoderBatch.run_steps`): the same tokens as `step` at a time, in fewer calls."""
+        act = np.asarray(actions, dtype=np.int64)
+        left = self.max_steps - self.t
+        if act.shape != (len(self.active), left) or ((act < 0) | (act >= NUM_ACTIONS)).any():
+            raise ValueError(f"give [{len(self.active)}, {left}] actions in 0..{NUM_ACTIONS - 1}")
+        active, start = self.active, self.t
+        run_steps = getattr(self._rows, "run_steps", None)
+        if run_steps is None or self.constrained:
+            while not self.finished:  # `active` is sorted, and those still running are a subset of it
+                self.step(act[np.searchsorted(active, self.active), self.t - start])
+            return
+        blocks, probs, taken = run_steps(torch.from_numpy(act), self.stop_on_done)
+        for s in range(int(taken.max(initial=0))):
+            which = np.flatnonzero(taken > s)
+            self._trajectories.write(active[which], start + s + 1, act[which, s], blocks[which, s], probs[which, s])
+        ended = blocks[np.arange(len(active)), np.maximum(taken - 1, 0), -1] == 1
+        self.t, self.active = self.max_steps, active[~ended] if self.stop_on_done else active
 
     def result(self) -> Imagination:
         return self._trajectories.result()
@@ -449,13 +470,12 @@ def imagine(
     rollout = StepwiseImagination(
         model, manual, first_obs, n, max_steps, temperature, seed, use_cache, stop_on_done, constrained, decoding
     )
-    while not rollout.finished:
+    if actions is not None:
+        rollout.run(actions[:, :max_steps])
+    while not rollout.finished:  # a policy acts on what has been imagined, a step at a time
         active, t = rollout.active, rollout.t + 1
-        if policy is not None:
-            act = np.asarray(policy(rollout.observations[active, :t], active, t), dtype=np.int64)
-            if act.shape != (len(active),) or ((act < 0) | (act >= NUM_ACTIONS)).any():
-                raise ValueError(f"the policy must return {len(active)} actions in 0..{NUM_ACTIONS - 1}")
-        else:
-            act = actions[active, t - 1]
+        act = np.asarray(policy(rollout.observations[active, :t], active, t), dtype=np.int64)
+        if act.shape != (len(active),) or ((act < 0) | (act >= NUM_ACTIONS)).any():
+            raise ValueError(f"the policy must return {len(active)} actions in 0..{NUM_ACTIONS - 1}")
         rollout.step(act)
     return rollout.result()

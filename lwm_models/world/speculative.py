@@ -47,8 +47,8 @@ from .tokens import BLOCK, COL_OFFSET, FIRST_REWARD_LABEL, OBS_TOKENS, OBS_VOCAB
 STEP_TOKENS = OBS_TOKENS + 2  # tokens sampled per step: 12 observation tokens, reward, done
 FED = BLOCK  # stream entries fed per step: the pending done, the action, and tokens 0..12
 _DELTAS = torch.tensor(ACTION_DELTAS + ((0, 0),), dtype=torch.long)  # the dummy action stays
-_AVATAR = 3 * 3  # the avatar channel's first token (id, row, column) in an observation
 MIN_GROUP = 4  # rows per group at least when a step's rows are cut into groups (`_groups`)
+DRIFT = 0  # steps a row may run ahead of the slowest in its group (`_Speculator.run_steps`; docs/speed.md)
 
 
 def draft_block(
@@ -58,17 +58,38 @@ def draft_block(
     avatar moved by its action [rows] (a move off the board undone); no reward and not done, or,
     after a done (a trajectory imagined past its end), the last reward and done again. A better
     guess only saves calls; a wrong one costs nothing in exactness."""
-    block = torch.empty(len(last_obs), STEP_TOKENS, dtype=torch.long)
-    block[:, :OBS_TOKENS] = last_obs
-    delta = _DELTAS[actions.long().clamp(0, NUM_ACTIONS)]
-    here = last_obs[:, _AVATAR] > 0
-    row = (last_obs[:, _AVATAR + 1] - ROW_OFFSET + delta[:, 0]).clamp(0, GRID - 1) + ROW_OFFSET
-    col = (last_obs[:, _AVATAR + 2] - COL_OFFSET + delta[:, 1]).clamp(0, GRID - 1) + COL_OFFSET
-    block[:, _AVATAR + 1] = torch.where(here, row, last_obs[:, _AVATAR + 1])
-    block[:, _AVATAR + 2] = torch.where(here, col, last_obs[:, _AVATAR + 2])
+    return _draft(last_obs, actions, last_done, last_reward, _DELTAS, *_DRAFT_CONSTANTS)
+
+
+_DRAFT_CONSTANTS = (NUM_ACTIONS, GRID, ROW_OFFSET, COL_OFFSET, FIRST_REWARD_LABEL)
+
+
+def _draft(
+    last_obs: torch.Tensor,
+    actions: torch.Tensor,
+    last_done: torch.Tensor,
+    last_reward: torch.Tensor,
+    deltas: torch.Tensor,
+    num_actions: int,
+    grid: int,
+    row_offset: int,
+    col_offset: int,
+    no_reward: int,
+) -> torch.Tensor:
+    """`draft_block`, with the game's constants as arguments: TorchScript reads no module constants,
+    and the scripted multi-step run (`_Speculator.run_steps`) drafts with it too."""
+    block = torch.empty(last_obs.shape[0], 14, dtype=torch.long)
+    block[:, :12] = last_obs
+    delta = deltas[actions.long().clamp(0, num_actions)]
+    avatar = 9  # the avatar channel's first token (id, row, column) in an observation
+    here = last_obs[:, avatar] > 0
+    row = (last_obs[:, avatar + 1] - row_offset + delta[:, 0]).clamp(0, grid - 1) + row_offset
+    col = (last_obs[:, avatar + 2] - col_offset + delta[:, 1]).clamp(0, grid - 1) + col_offset
+    block[:, avatar + 1] = torch.where(here, row, last_obs[:, avatar + 1])
+    block[:, avatar + 2] = torch.where(here, col, last_obs[:, avatar + 2])
     ended = last_done == 1
-    block[:, OBS_TOKENS] = torch.where(ended, last_reward, FIRST_REWARD_LABEL)  # label 2: reward 0
-    block[:, OBS_TOKENS + 1] = last_done
+    block[:, 12] = torch.where(ended, last_reward, torch.full_like(last_reward, no_reward))  # label 2: reward 0
+    block[:, 13] = last_done
     return block
 
 
@@ -139,13 +160,48 @@ class FlatDecoderBatch(DecoderBatch):
             rows, calls = everyone, 0
             while len(rows):
                 allowed = self._allowed(rules, block, rows)
-                rows = self.speculator(*state, rows, *conditioning, self._lookahead(len(rows), calls), allowed)
+                rows = self.speculator(*state, rows, *conditioning, *self._lookahead(len(rows)), allowed)
                 calls += 1
             self.calls += calls
         self.pending = block[:, -1]
         self.last_reward = block[:, OBS_TOKENS].clone()
         self.last_obs = block[:, :OBS_TOKENS].clone()
         return block.numpy(), probs.numpy()
+
+    @torch.inference_mode()
+    def run_steps(self, actions: torch.Tensor, stop_on_done: bool) -> tuple:
+        """Every row takes all its actions [rows, S] (none constrained), each row going on to its next
+        step as soon as it has sampled a block (`_Speculator.run_steps`), until the last action
+        or, with `stop_on_done`, a done; returns the blocks [rows, S, 14], their tokens'
+        probabilities and the steps each row took [rows] (numpy). What `step` samples, a step at a
+        time, for the same rows (tests/test_fast_imagination.py)."""
+        if bool(self.constrained.any()):
+            raise ValueError("run_steps samples without the game's rules; step constrained rows one at a time")
+        b, steps = actions.shape
+        everyone = torch.arange(b)
+        later = torch.stack([self.uniforms[everyone, self.t + s] for s in range(steps)], 1)  # [rows, S, 14]
+        block = draft_block(self.last_obs, actions[:, 0], self.pending, self.last_reward)
+        stream = torch.cat([self.pending[:, None], actions[:, :1], block[:, : FED - 2]], 1)
+        fed, known = torch.zeros(b, dtype=torch.long), torch.zeros(b, dtype=torch.long)
+        probs, uniforms = torch.zeros(b, STEP_TOKENS), later[:, 0].clone()
+        state = (stream, fed, known, block, probs, self.cache.lengths, uniforms, self.temperature)
+        conditioning = (self.cond.id_table, self.cache.k, self.cache.v)
+        taken = torch.zeros(b, dtype=torch.long)
+        blocks = torch.zeros(b, steps, STEP_TOKENS, dtype=torch.long)
+        block_probs = torch.zeros(b, steps, STEP_TOKENS)
+        out = (actions.long(), later, taken, blocks, block_probs, stop_on_done, DRIFT)
+        available = lanes()
+        groups = _groups(b, available)
+        if len(groups) == 1:
+            threads = torch.get_num_threads()
+            self.calls += self.speculator.run_steps(everyone, *state, *conditioning, self.lookahead, threads, *out)
+        else:
+            work = [
+                (self.speculator.run_steps, (rows, *state, *conditioning, self.lookahead, 1, *out)) for rows in groups
+            ]
+            self.calls += max(available.run(work))
+        self.t = self.t + taken
+        return blocks.numpy(), block_probs.numpy(), taken.numpy()
 
     def admit(self, cond, first, max_steps, temperature, gen, constrained=False) -> None:
         super().admit(cond, first, max_steps, temperature, gen, constrained)
@@ -156,8 +212,10 @@ class FlatDecoderBatch(DecoderBatch):
         super().keep(idx)
         self.last_reward = self.last_reward[idx]
 
-    def _lookahead(self, rows: int, call: int) -> int:
-        return _lookahead(rows, call, torch.get_num_threads()) if self.lookahead < 0 else self.lookahead
+    def _lookahead(self, rows: int) -> tuple[int, int]:
+        if self.lookahead < 0:
+            return _lookahead(rows, torch.get_num_threads())
+        return self.lookahead, self.lookahead
 
     def _allowed(self, rules: StepRules, block: torch.Tensor, rows: torch.Tensor) -> torch.Tensor:
         """What the rules allow at each of the 14 slots of rows `rows` [A, 14, 37] (reward and done
@@ -182,31 +240,34 @@ def _groups(rows: int, available: Lanes | None) -> list[torch.Tensor]:
     return [torch.arange(rows * i // count, rows * (i + 1) // count) for i in range(count)]
 
 
-def _lookahead(rows: int, call: int, threads: int) -> int:
-    """Draft tokens a call feeds per row when `rows` rows take part on `threads` intra-op threads,
-    in the step's call number `call` (0: the first). A call over one row costs about the same for 1
+def _lookahead(rows: int, threads: int) -> tuple[int, int]:
+    """Draft tokens a call feeds per row when `rows` rows take part on `threads` intra-op threads:
+    (where a row starts its step, where it goes on). A call over one row costs about the same for 1
     token or 15 (dispatch, not arithmetic), so a lone row feeds its whole draft; over many rows
     every rejected token is arithmetic. A step's first draft (the last observation) is wrong
-    somewhere in most rows, so the first call feeds a few tokens; a later call's draft is what the
-    call before it sampled, mostly right, so up to 16 rows a thread feed the rest of the block.
+    somewhere in most rows, so a step's first call feeds a few tokens; a later call's draft is what
+    the call before it sampled, mostly right, so up to 16 rows a thread feed the rest of the block.
     Above that a call is arithmetic-bound and feeding 3 throughout was fastest, on 2 threads or on a
     lane's one (benchmarks/imagination.py, docs/speed.md)."""
     if rows <= 4:
-        return 13  # the whole draft (FED - 2; TorchScript reads no module constants)
+        return 13, 13  # the whole draft (FED - 2; TorchScript reads no module constants)
     if rows > 16 * threads:
-        return 3
-    return 5 if call == 0 else 13
+        return 3, 3
+    return 5, 13
 
 
 class _Speculator(nn.Module):
-    """A decoder call with what comes before and after it (`_feed`, `_decide`), and a whole step
-    of such calls (`run`), as one scripted graph: the per-call bookkeeping is ~60 small ops, which
-    cost more than the decoder call itself when dispatched from Python."""
+    """A decoder call with what comes before and after it (`_feed`, `_decide`), a whole step of
+    such calls (`run`), and whole trajectories of known actions (`run_steps`), as one scripted
+    graph: the per-call bookkeeping is ~60 small ops, which cost more than the decoder call itself
+    when dispatched from Python."""
 
     def __init__(self, model: WorldModel) -> None:
         super().__init__()
         self.decoder = _Step(model)
         self.heads = _SlotHeads(model.obs_head, model.reward_head, model.done_head)
+        self.deltas = _DELTAS.clone()
+        self.num_actions, self.grid, self.row_offset, self.col_offset, self.no_reward = _DRAFT_CONSTANTS
 
     @staticmethod
     def scripted(model: WorldModel) -> torch.jit.ScriptModule:
@@ -227,12 +288,14 @@ class _Speculator(nn.Module):
         id_table: torch.Tensor | None,
         k_cache: torch.Tensor,
         v_cache: torch.Tensor,
-        lookahead: int,
+        first: int,
+        later: int,
         allowed: torch.Tensor | None,
     ) -> torch.Tensor:
-        """One call for rows `rows`; updates the step's state in place and returns the rows still
+        """One call for rows `rows`, feeding `first` draft tokens where a row starts its step and
+        `later` where it goes on; updates the step's state in place and returns the rows still
         sampling."""
-        tokens, count = _feed(stream, fed, rows, lookahead)
+        tokens, count = _feed(stream, fed, rows, first, later)
         table = None if id_table is None else id_table.index_select(0, rows)
         # A lone row is never padded: its call skips the packing's bookkeeping.
         h = self.decoder(tokens, rows, lengths, table, k_cache, v_cache, count if rows.shape[0] > 1 else None)
@@ -259,12 +322,12 @@ class _Speculator(nn.Module):
         threads: int,
     ) -> int:
         """A whole unconstrained step of the rows `rows`: calls until each has sampled its block;
-        returns how many calls it took. `lookahead` < 0: by the rows in each call and its number
-        (`_lookahead`) on `threads` intra-op threads (a lane has one). Groups of rows may run at once
-        on other threads (lanes.py): each writes only its own rows of the step's state and the cache."""
+        returns how many calls it took. `lookahead` < 0: by the rows in each call (`_lookahead`) on
+        `threads` intra-op threads (a lane has one). Groups of rows may run at once on other threads
+        (lanes.py): each writes only its own rows of the step's state and the cache."""
         calls = 0
         while rows.shape[0] > 0:
-            ahead = _lookahead(rows.shape[0], calls, threads) if lookahead < 0 else lookahead
+            first, later = _lookahead(rows.shape[0], threads) if lookahead < 0 else (lookahead, lookahead)
             rows = self.forward(
                 stream,
                 fed,
@@ -278,21 +341,120 @@ class _Speculator(nn.Module):
                 id_table,
                 k_cache,
                 v_cache,
-                ahead,
+                first,
+                later,
                 None,
             )
             calls += 1
         return calls
 
+    @torch.jit.export
+    def run_steps(
+        self,
+        rows: torch.Tensor,
+        stream: torch.Tensor,
+        fed: torch.Tensor,
+        known: torch.Tensor,
+        block: torch.Tensor,
+        probs: torch.Tensor,
+        lengths: torch.Tensor,
+        uniforms: torch.Tensor,
+        temperature: torch.Tensor,
+        id_table: torch.Tensor | None,
+        k_cache: torch.Tensor,
+        v_cache: torch.Tensor,
+        lookahead: int,
+        threads: int,
+        actions: torch.Tensor,
+        later_uniforms: torch.Tensor,
+        taken: torch.Tensor,
+        blocks: torch.Tensor,
+        block_probs: torch.Tensor,
+        stop_on_done: bool,
+        drift: int,
+    ) -> int:
+        """Steps until each of the rows `rows` has taken every action of `actions` [rows, S] (or
+        sampled done, with `stop_on_done`); returns the calls it took. The state is `run`'s for
+        the first step; a row that has sampled its block writes it to `blocks` [rows, S, 14] (and
+        its probabilities to `block_probs`) and starts its next step in the next call, drafted from
+        that block, with its uniform numbers from `later_uniforms` [rows, S, 14]: rows do not wait
+        for each other at a step's end. `taken` [rows]: the steps each row has sampled."""
+        steps = actions.shape[1]
+        calls = 0
+        waiting = rows[:0]  # rows that have sampled a block and wait to start the next (`drift`)
+        while rows.shape[0] > 0:
+            first, later = _lookahead(rows.shape[0], threads) if lookahead < 0 else (lookahead, lookahead)
+            called = rows
+            rows = self.forward(
+                stream,
+                fed,
+                known,
+                block,
+                probs,
+                lengths,
+                uniforms,
+                temperature,
+                rows,
+                id_table,
+                k_cache,
+                v_cache,
+                first,
+                later,
+                None,
+            )
+            calls += 1
+            done = called[known.index_select(0, called) >= 14]
+            if done.shape[0] == 0:
+                continue
+            # The rows that sampled their block: record it; those that go on wait until no row
+            # still running is more than `drift` steps behind them.
+            s = taken.index_select(0, done)
+            last = block.index_select(0, done)
+            blocks[done, s] = last
+            block_probs[done, s] = probs.index_select(0, done)
+            taken.index_copy_(0, done, s + 1)
+            going = s + 1 < steps
+            if stop_on_done:
+                going = going & (last[:, 13] != 1)
+            waiting = torch.cat([waiting, done[going]])
+            if waiting.shape[0] == 0:
+                continue
+            slowest = taken.index_select(0, torch.cat([rows, waiting])).min()
+            ready = taken.index_select(0, waiting) <= slowest + drift
+            on, waiting = waiting[ready], waiting[~ready]
+            if on.shape[0] == 0:
+                continue
+            s, last = taken.index_select(0, on), block.index_select(0, on)
+            act = actions[on, s]
+            draft = _draft(
+                last[:, :12],
+                act,
+                last[:, 13],
+                last[:, 12],
+                self.deltas,
+                self.num_actions,
+                self.grid,
+                self.row_offset,
+                self.col_offset,
+                self.no_reward,
+            )
+            block[on] = draft
+            stream[on] = torch.cat([last[:, 13:], act[:, None], draft[:, :13]], 1)
+            fed.index_fill_(0, on, 0)
+            known.index_fill_(0, on, 0)
+            uniforms[on] = later_uniforms[on, s]
+            rows = torch.cat([rows, on]).sort()[0]  # in order: a call over all rows reads the cache in place
+        return calls
+
 
 def _feed(
-    stream: torch.Tensor, fed: torch.Tensor, rows: torch.Tensor, lookahead: int
+    stream: torch.Tensor, fed: torch.Tensor, rows: torch.Tensor, first: int, later: int
 ) -> tuple[torch.Tensor, torch.Tensor]:
-    """The tokens [A, n] rows `rows` feed next: each row's stream from what it has fed, one token
-    (two at a step's start) plus up to `lookahead` of the draft, right-padded with 0 (a token of
-    every vocabulary); and how many of them are real [A]."""
+    """The tokens [A, n] rows `rows` feed next: each row's stream from what it has fed, two tokens
+    and `first` of the draft at a step's start, else one token and up to `later` of the draft,
+    right-padded with 0 (a token of every vocabulary); and how many of them are real [A]."""
     c = fed.index_select(0, rows)
-    count = torch.minimum(15 - c, torch.where(c == 0, 2, 1) + lookahead)
+    count = torch.minimum(15 - c, torch.where(c == 0, 2 + first, 1 + later))
     n = int(count.max())
     ahead = torch.arange(n)
     at = (c[:, None] + ahead[None, :]).clamp(max=14)
