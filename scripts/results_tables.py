@@ -321,7 +321,8 @@ def speed(base: str) -> list[str]:
         rows = [r["rows"][i] for r in runs]
         ratios = ", ".join(f"{r['ratio_to_reference']['speculative']:.2f}x" for r in rows)
         if all("stepwise" in r["ratio_to_reference"] for r in rows):  # a policy's imagination, a step at a time
-            ratios += " (a step at a time: " + ", ".join(f"{r['ratio_to_reference']['stepwise']:.2f}x" for r in rows) + ")"
+            stepwise = ", ".join(f"{r['ratio_to_reference']['stepwise']:.2f}x" for r in rows)
+            ratios += f" (a step at a time: {stepwise})"
         ref = _span([r["seconds"]["reference"] for r in rows])
         now = _span([r["seconds"]["speculative"] for r in rows])
         floor = min(r["floor_seconds"] for r in rows)

@@ -133,59 +133,37 @@ class FlatDecoderBatch(DecoderBatch):
     def step(self, actions: torch.Tensor) -> tuple:
         """As `DecoderBatch.step`: every row takes its action; returns the sampled blocks [rows, 14] and
         each token's probability (numpy)."""
+        if not bool(self.constrained.any()):
+            blocks, probs, _ = self.run_steps(actions[:, None], stop_on_done=False)
+            return blocks[:, 0], probs[:, 0]
+        # Under the game's rules, which are Python: what they allow is computed before each call.
         b = len(self)
-        everyone = torch.arange(b)
-        uniforms = self.uniforms[everyone, self.t]  # [rows, 14]
+        state = self._start(actions, self.uniforms[torch.arange(b), self.t])
+        block, probs = state[3], state[4]
         self.t = self.t + 1
-        rules = StepRules(self.last_obs, actions, self.t >= self.limit) if bool(self.constrained.any()) else None
-        # The block: sampled tokens where known, the draft after.
-        block = draft_block(self.last_obs, actions, self.pending, self.last_reward)
-        probs = torch.zeros(b, STEP_TOKENS)
-        # The step's stream: pending done, action, tokens 0..12; fed[i] of it are in row i's cache.
-        stream = torch.cat([self.pending[:, None], actions[:, None], block[:, : FED - 2]], 1)
-        fed = torch.zeros(b, dtype=torch.long)
-        known = torch.zeros(b, dtype=torch.long)  # tokens of the block sampled so far
-        state = (stream, fed, known, block, probs, self.cache.lengths, uniforms, self.temperature)
-        conditioning = (self.cond.id_table, self.cache.k, self.cache.v)
-        if rules is None:  # the whole step in scripted calls: one per group of rows (lanes.py)
-            available = lanes()
-            groups = _groups(b, available)
-            if len(groups) == 1:
-                threads = torch.get_num_threads()
-                self.calls += self.speculator.run(everyone, *state, *conditioning, self.lookahead, threads)
-            else:
-                work = [(self.speculator.run, (rows, *state, *conditioning, self.lookahead, 1)) for rows in groups]
-                self.calls += max(available.run(work))
-        else:  # the rules are Python: what they allow is computed before each call
-            rows, calls = everyone, 0
-            while len(rows):
-                allowed = self._allowed(rules, block, rows)
-                rows = self.speculator(*state, rows, *conditioning, *self._lookahead(len(rows)), allowed)
-                calls += 1
-            self.calls += calls
-        self.pending = block[:, -1]
-        self.last_reward = block[:, OBS_TOKENS].clone()
-        self.last_obs = block[:, :OBS_TOKENS].clone()
+        rules = StepRules(self.last_obs, actions, self.t >= self.limit)
+        rows, calls = torch.arange(b), 0
+        while len(rows):
+            allowed = self._allowed(rules, block, rows)
+            rows = self.speculator(*state, rows, *self._conditioning(), *self._lookahead(len(rows)), allowed)
+            calls += 1
+        self.calls += calls
+        self._ended(block)
         return block.numpy(), probs.numpy()
 
     @torch.inference_mode()
     def run_steps(self, actions: torch.Tensor, stop_on_done: bool) -> tuple:
-        """Every row takes all its actions [rows, S] (none constrained), each row going on to its next
-        step as soon as it has sampled a block (`_Speculator.run_steps`), until the last action
-        or, with `stop_on_done`, a done; returns the blocks [rows, S, 14], their tokens'
-        probabilities and the steps each row took [rows] (numpy). What `step` samples, a step at a
-        time, for the same rows (tests/test_fast_imagination.py)."""
+        """Every row takes all its actions [rows, S] (none constrained), in scripted calls, one
+        chain per group of rows (lanes.py; `_Speculator.run_steps`), until the last action or, with
+        `stop_on_done`, a done; returns the blocks [rows, S, 14], their tokens' probabilities and the
+        steps each row took [rows] (numpy). What `step` samples, a step at a time, for the same rows
+        (tests/test_fast_imagination.py)."""
         if bool(self.constrained.any()):
             raise ValueError("run_steps samples without the game's rules; step constrained rows one at a time")
         b, steps = actions.shape
         everyone = torch.arange(b)
         later = torch.stack([self.uniforms[everyone, self.t + s] for s in range(steps)], 1)  # [rows, S, 14]
-        block = draft_block(self.last_obs, actions[:, 0], self.pending, self.last_reward)
-        stream = torch.cat([self.pending[:, None], actions[:, :1], block[:, : FED - 2]], 1)
-        fed, known = torch.zeros(b, dtype=torch.long), torch.zeros(b, dtype=torch.long)
-        probs, uniforms = torch.zeros(b, STEP_TOKENS), later[:, 0].clone()
-        state = (stream, fed, known, block, probs, self.cache.lengths, uniforms, self.temperature)
-        conditioning = (self.cond.id_table, self.cache.k, self.cache.v)
+        state = self._start(actions[:, 0], later[:, 0].clone())
         taken = torch.zeros(b, dtype=torch.long)
         blocks = torch.zeros(b, steps, STEP_TOKENS, dtype=torch.long)
         block_probs = torch.zeros(b, steps, STEP_TOKENS)
@@ -194,14 +172,39 @@ class FlatDecoderBatch(DecoderBatch):
         groups = _groups(b, available)
         if len(groups) == 1:
             threads = torch.get_num_threads()
-            self.calls += self.speculator.run_steps(everyone, *state, *conditioning, self.lookahead, threads, *out)
+            self.calls += self.speculator.run_steps(
+                everyone, *state, *self._conditioning(), self.lookahead, threads, *out
+            )
         else:
             work = [
-                (self.speculator.run_steps, (rows, *state, *conditioning, self.lookahead, 1, *out)) for rows in groups
+                (self.speculator.run_steps, (rows, *state, *self._conditioning(), self.lookahead, 1, *out))
+                for rows in groups
             ]
             self.calls += max(available.run(work))
         self.t = self.t + taken
+        self._ended(blocks[everyone, (taken - 1).clamp(min=0)])
         return blocks.numpy(), block_probs.numpy(), taken.numpy()
+
+    def _start(self, actions: torch.Tensor, uniforms: torch.Tensor) -> tuple:
+        """The state of a step every row starts with its action [rows] and uniform numbers [rows, 14]:
+        the block (sampled tokens where known, the draft after), their probabilities, the step's
+        stream (pending done, action, tokens 0..12) of which `fed` are in each row's cache, and the
+        tokens of the block sampled so far (`known`)."""
+        b = len(self)
+        block = draft_block(self.last_obs, actions, self.pending, self.last_reward)
+        stream = torch.cat([self.pending[:, None], actions[:, None], block[:, : FED - 2]], 1)
+        fed, known = torch.zeros(b, dtype=torch.long), torch.zeros(b, dtype=torch.long)
+        probs = torch.zeros(b, STEP_TOKENS)
+        return stream, fed, known, block, probs, self.cache.lengths, uniforms, self.temperature
+
+    def _conditioning(self) -> tuple:
+        return self.cond.id_table, self.cache.k, self.cache.v
+
+    def _ended(self, block: torch.Tensor) -> None:
+        """Each row's last sampled block [rows, 14]: what its next step is drafted from."""
+        self.pending = block[:, -1].clone()
+        self.last_reward = block[:, OBS_TOKENS].clone()
+        self.last_obs = block[:, :OBS_TOKENS].clone()
 
     def admit(self, cond, first, max_steps, temperature, gen, constrained=False) -> None:
         super().admit(cond, first, max_steps, temperature, gen, constrained)
@@ -257,10 +260,10 @@ def _lookahead(rows: int, threads: int) -> tuple[int, int]:
 
 
 class _Speculator(nn.Module):
-    """A decoder call with what comes before and after it (`_feed`, `_decide`), a whole step of
-    such calls (`run`), and whole trajectories of known actions (`run_steps`), as one scripted
-    graph: the per-call bookkeeping is ~60 small ops, which cost more than the decoder call itself
-    when dispatched from Python."""
+    """A decoder call with what comes before and after it (`_feed`, `_decide`), and the calls of
+    one or more steps of known actions (`run_steps`), as one scripted graph: the per-call
+    bookkeeping is ~60 small ops, which cost more than the decoder call itself when dispatched
+    from Python."""
 
     def __init__(self, model: WorldModel) -> None:
         super().__init__()
@@ -304,51 +307,6 @@ class _Speculator(nn.Module):
         )
 
     @torch.jit.export
-    def run(
-        self,
-        rows: torch.Tensor,
-        stream: torch.Tensor,
-        fed: torch.Tensor,
-        known: torch.Tensor,
-        block: torch.Tensor,
-        probs: torch.Tensor,
-        lengths: torch.Tensor,
-        uniforms: torch.Tensor,
-        temperature: torch.Tensor,
-        id_table: torch.Tensor | None,
-        k_cache: torch.Tensor,
-        v_cache: torch.Tensor,
-        lookahead: int,
-        threads: int,
-    ) -> int:
-        """A whole unconstrained step of the rows `rows`: calls until each has sampled its block;
-        returns how many calls it took. `lookahead` < 0: by the rows in each call (`_lookahead`) on
-        `threads` intra-op threads (a lane has one). Groups of rows may run at once on other threads
-        (lanes.py): each writes only its own rows of the step's state and the cache."""
-        calls = 0
-        while rows.shape[0] > 0:
-            first, later = _lookahead(rows.shape[0], threads) if lookahead < 0 else (lookahead, lookahead)
-            rows = self.forward(
-                stream,
-                fed,
-                known,
-                block,
-                probs,
-                lengths,
-                uniforms,
-                temperature,
-                rows,
-                id_table,
-                k_cache,
-                v_cache,
-                first,
-                later,
-                None,
-            )
-            calls += 1
-        return calls
-
-    @torch.jit.export
     def run_steps(
         self,
         rows: torch.Tensor,
@@ -373,12 +331,16 @@ class _Speculator(nn.Module):
         stop_on_done: bool,
         drift: int,
     ) -> int:
-        """Steps until each of the rows `rows` has taken every action of `actions` [rows, S] (or
-        sampled done, with `stop_on_done`); returns the calls it took. The state is `run`'s for
-        the first step; a row that has sampled its block writes it to `blocks` [rows, S, 14] (and
-        its probabilities to `block_probs`) and starts its next step in the next call, drafted from
-        that block, with its uniform numbers from `later_uniforms` [rows, S, 14]: rows do not wait
-        for each other at a step's end. `taken` [rows]: the steps each row has sampled."""
+        """Steps, unconstrained, until each of the rows `rows` has taken every action of `actions`
+        [rows, S] (or sampled done, with `stop_on_done`); returns the calls it took. The state
+        (`stream` to `temperature`) is that of the first step (`FlatDecoderBatch._start`); a row
+        that has sampled its block writes it to `blocks` [rows, S, 14] (and its probabilities to
+        `block_probs`) and starts its next step in a later call, drafted from that block, with its
+        uniform numbers from `later_uniforms` [rows, S, 14], once no row still running is more
+        than `drift` steps behind it. `taken` [rows]: the steps each row has sampled. `lookahead`
+        < 0: by the rows in each call (`_lookahead`) on `threads` intra-op threads (a lane has
+        one). Groups of rows may run at once on other threads (lanes.py): each writes only its own
+        rows of the state and the cache."""
         steps = actions.shape[1]
         calls = 0
         waiting = rows[:0]  # rows that have sampled a block and wait to start the next (`drift`)
