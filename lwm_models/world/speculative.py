@@ -162,7 +162,7 @@ class FlatDecoderBatch(DecoderBatch):
             raise ValueError("run_steps samples without the game's rules; step constrained rows one at a time")
         b, steps = actions.shape
         everyone = torch.arange(b)
-        later = torch.stack([self.uniforms[everyone, self.t + s] for s in range(steps)], 1)  # [rows, S, 14]
+        later = self.uniforms[everyone[:, None], self.t[:, None] + torch.arange(steps)]  # [rows, S, 14]
         state = self._start(actions[:, 0], later[:, 0].clone())
         taken = torch.zeros(b, dtype=torch.long)
         blocks = torch.zeros(b, steps, STEP_TOKENS, dtype=torch.long)
@@ -182,7 +182,7 @@ class FlatDecoderBatch(DecoderBatch):
             ]
             self.calls += max(available.run(work))
         self.t = self.t + taken
-        self._ended(blocks[everyone, (taken - 1).clamp(min=0)])
+        self._ended(state[3])  # each row's block: the last it sampled (no draft follows a row's last step)
         return blocks.numpy(), block_probs.numpy(), taken.numpy()
 
     def _start(self, actions: torch.Tensor, uniforms: torch.Tensor) -> tuple:
