@@ -188,6 +188,9 @@ def test_a_whole_run_checks_its_actions(shipped, starts):
         rollout.run(np.zeros((len(starts), STEPS - 1), dtype=np.int64))
     with pytest.raises(ValueError, match="actions"):
         rollout.run(np.full((len(starts), STEPS), 5))
+    rollout.run(np.zeros((len(starts), STEPS), dtype=np.int64))
+    assert rollout.finished and (rollout.lengths > 1).all()
+    rollout.run(np.zeros((len(rollout.active), 0), dtype=np.int64))  # nothing left to take
 
 
 def test_continuous_batching_on_the_fast_path(shipped, starts):

@@ -406,12 +406,15 @@ class StepwiseImagination:
 
     def run(self, actions: np.ndarray) -> None:
         """Every running trajectory takes all its remaining actions [running, steps left], to the end.
-        The fast paths, unconstrained, let each row go on to its next step without waiting for the
-        others (`FlatDecoderBatch.run_steps`): the same tokens as `step` at a time, in fewer calls."""
+        The fast paths, unconstrained, take every step in their scripted graph, each lane's group of
+        rows on its own, with no Python step and no wait for the other lanes between steps
+        (`FlatDecoderBatch.run_steps`): the tokens of `step` at a time, in less time."""
         act = np.asarray(actions, dtype=np.int64)
         left = self.max_steps - self.t
         if act.shape != (len(self.active), left) or ((act < 0) | (act >= NUM_ACTIONS)).any():
             raise ValueError(f"give [{len(self.active)}, {left}] actions in 0..{NUM_ACTIONS - 1}")
+        if self.finished:
+            return
         active, start = self.active, self.t
         run_steps = getattr(self._rows, "run_steps", None)
         if run_steps is None or self.constrained:
