@@ -175,7 +175,8 @@ def summary(base: str) -> list[str]:
         d = _load(path)
         ce = [d["results"][s]["cross_entropy"]["total"] for s in SPLITS]
         row = rows.get(f"online_il/{key}")
-        ret = "not measured" if row is None else _return(row["newall-test"], paper3[("online_il", kind)][2])
+        paper = paper3.get(("online_il", kind))  # the paper ran no GPTHard in Table 3
+        ret = "not measured" if row is None else _return(row["newall-test"], None if paper is None else paper[2])
         lines.append(f"| {_model_label(name, d['steps'])} | {_per_split(ce, '.3f', PAPER_CE[kind])} | {ret} |")
     return lines
 
