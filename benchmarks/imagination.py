@@ -43,7 +43,7 @@ BATCHES = (1, 16, 64)
 PATHS = ("reference", "flat", "speculative", "stepwise")
 # "stepwise": the speculative path a step at a time, every row waiting for the others at each step's
 # end, as imagination acted by a policy (the agent) or a server's sessions runs; `imagine` with known
-# actions lets each row go on to its next step (StepwiseImagination.run).
+# actions takes every step in the scripted graph (StepwiseImagination.run).
 
 
 def trajectory_flops(cfg: DecoderConfig, steps: int = STEPS) -> float:
@@ -130,20 +130,21 @@ def main() -> None:
             decoding=decoding,
         )
 
-    def stepwise(n: int, actions: np.ndarray) -> StepwiseImagination:
-        rollout = StepwiseImagination(
+    def rollout(n: int) -> StepwiseImagination:
+        return StepwiseImagination(
             model, batch, first, n=n, max_steps=STEPS, seed=0, stop_on_done=False, decoding="speculative"
         )
+
+    def stepwise(n: int, actions: np.ndarray) -> StepwiseImagination:
+        stepped = rollout(n)
         for t in range(STEPS):
-            rollout.step(actions[:, t])
-        return rollout
+            stepped.step(actions[:, t])
+        return stepped
 
     def calls_per_step(n: int) -> tuple[float, float]:
-        """Decoder calls per step on the speculative path: rows going on without waiting, a step at a time."""
+        """Decoder calls per step on the speculative path: a whole run of the actions, a step at a time."""
         actions = np.random.default_rng(0).integers(5, size=(n, STEPS))
-        whole = StepwiseImagination(
-            model, batch, first, n=n, max_steps=STEPS, seed=0, stop_on_done=False, decoding="speculative"
-        )
+        whole = rollout(n)
         whole.run(actions)
         return whole._rows.calls / STEPS, stepwise(n, actions)._rows.calls / STEPS
 

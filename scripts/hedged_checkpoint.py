@@ -6,9 +6,9 @@ descriptions; none for GPTHard, world/hedged_gpthard.py). Nothing is trained; it
 
     .venv/bin/python scripts/hedged_checkpoint.py --data data/human \\
         --source lwm_models/checkpoints/emma-lwm-reader --out lwm_models/checkpoints/emma-lwm-hedged \\
-        --stand-quantile 0 --ground
+        --stand-quantile 0 --ground --max-readings 125 --keep-readings 9
     .venv/bin/python scripts/hedged_checkpoint.py --data data/human \\
-        --source lwm_models/checkpoints/gpthard --out lwm_models/checkpoints/gpthard-hedged --ground \
+        --source lwm_models/checkpoints/gpthard --out lwm_models/checkpoints/gpthard-hedged --ground \\
         --max-readings 125 --keep-readings 9
 """
 

@@ -139,7 +139,7 @@ class FlatDecoderBatch(DecoderBatch):
         # Under the game's rules, which are Python: what they allow is computed before each call.
         b = len(self)
         state = self._start(actions, self.uniforms[torch.arange(b), self.t])
-        block, probs = state[3], state[4]
+        _, _, _, block, probs, *_ = state
         self.t = self.t + 1
         rules = StepRules(self.last_obs, actions, self.t >= self.limit)
         rows, calls = torch.arange(b), 0
@@ -182,7 +182,8 @@ class FlatDecoderBatch(DecoderBatch):
             ]
             self.calls += max(available.run(work))
         self.t = self.t + taken
-        self._ended(state[3])  # each row's block: the last it sampled (no draft follows a row's last step)
+        _, _, _, block, *_ = state
+        self._ended(block)  # each row's last sampled block (no draft follows a row's last step)
         return blocks.numpy(), block_probs.numpy(), taken.numpy()
 
     def _start(self, actions: torch.Tensor, uniforms: torch.Tensor) -> tuple:
