@@ -109,7 +109,7 @@ class _Step(nn.Module):
         v_cache: torch.Tensor,
         count: torch.Tensor | None = None,
     ) -> torch.Tensor:
-        """Final hidden states [A, n, H] of tokens [A, n] of cache rows `rows` [A], placed at each
+        """Final hidden states [A, n, H] of tokens [A, n] of cache rows `rows` [A] (ascending), placed at each
         row's length (`lengths`: every row's); writes their keys and values there. `count` [A]: how
         many of each row's tokens are real; the rest is padding, left out of the per-token layers
         (its hidden states are zero, its keys and values are never read)."""
@@ -144,7 +144,10 @@ class _Step(nn.Module):
         # Where each new key goes in the cache viewed as [rows * kv_heads * capacity, d], in the
         # (token, kv head) order of the projection's output.
         slots = ((owner[:, None] * kvh + torch.arange(kvh)[None, :]) * k_cache.shape[3] + at[:, None]).view(-1)
-        everyone = a == k_cache.shape[1]
+        # A call's rows are often a run of consecutive cache rows (a lane's group, all of a step's
+        # rows at its start): then the attention reads the cache in place, not a gathered copy.
+        lo = int(rows[0]) if a > 0 else 0
+        consecutive = a > 0 and int(rows[-1]) - lo + 1 == a  # rows ascend
         for i in range(len(self.qkv_w)):
             y = F.layer_norm(x, [h], self.ln1_w[i], self.ln1_b[i], self.eps)
             qkv = F.linear(y, self.qkv_w[i], self.qkv_b[i])
@@ -157,12 +160,16 @@ class _Step(nn.Module):
             # Rows of one matmul: a kv head's query heads for each token, (token, head) within a
             # row; with one kv head that is the projection's own layout.
             qg = q.reshape(a, n, kvh, group, d).permute(0, 2, 1, 3, 4).reshape(a, kvh, n * group, d)
-            if everyone:  # rows is arange: read the cache in place
-                keys, values = kc[:, :, :width], vc[:, :, :width]
+            if consecutive:
+                keys, values = kc[lo : lo + a, :, :width], vc[lo : lo + a, :, :width]
             else:
                 keys, values = kc[:, :, :width].index_select(0, rows), vc[:, :, :width].index_select(0, rows)
-            scores = ((qg @ keys.transpose(-1, -2)) * self.scale).view(a, kvh, n, group, width) + bias
-            att = torch.softmax(scores.view(a, kvh, n * group, width), dim=-1) @ values
+            # Batched over (row, kv head) as 3-d matmuls, the scale and the mask applied in place:
+            # the same numbers as the 4-d matmuls and their copies, 4% faster at 16-64 rows.
+            keys, values = keys.reshape(a * kvh, width, d), values.reshape(a * kvh, width, d)
+            scores = torch.bmm(qg.reshape(a * kvh, n * group, d), keys.transpose(1, 2))
+            scores = scores.mul_(self.scale).view(a, kvh, n, group, width).add_(bias)
+            att = torch.bmm(torch.softmax(scores.view(a * kvh, n * group, width), dim=-1), values)
             att = att.view(a, kvh, n, group, d).permute(0, 2, 1, 3, 4).reshape(a * n, h)
             if keep is not None:
                 att = att.index_select(0, keep)
