@@ -21,7 +21,7 @@ from lwm_models.world import speculative
 from lwm_models.world.checkpoint import load_checkpoint
 from lwm_models.world.continuous import ContinuousBatch, OneShot
 from lwm_models.world.decoding import default_decoding, make_decoder_batch
-from lwm_models.world.flat_decoder import FlatDecoder
+from lwm_models.world.flat_decoder import FlatDecoder, scripted
 from lwm_models.world.imagine import DecoderBatch, StepwiseImagination, board_of, condition_rows, imagine
 from lwm_models.world.registry import PRESETS, build_model
 from lwm_models.world.shipped import shipped_checkpoint
@@ -132,8 +132,9 @@ def test_the_draft_decides_speed_not_tokens(shipped, starts, monkeypatch):
     model, manual = shipped
     reference = run(model, manual, starts, "reference", seed=2)
 
-    def wrong(last_obs, actions, last_done, last_reward):
-        return torch.zeros(len(last_obs), speculative.STEP_TOKENS, dtype=torch.long)
+    class WrongDrafts(speculative._Speculator):
+        def _draft(self, last: torch.Tensor, act: torch.Tensor) -> torch.Tensor:
+            return torch.zeros(last.shape[0], 14, dtype=torch.long)
 
     def calls_per_step() -> float:
         # One row alone feeds its whole draft per call (no lookahead limit): calls count re-drafts.
@@ -143,9 +144,10 @@ def test_the_draft_decides_speed_not_tokens(shipped, starts, monkeypatch):
         return rollout._rows.calls / STEPS
 
     right = calls_per_step()
-    monkeypatch.setattr(speculative, "draft_block", wrong)
-    # A step at a time, so that every step drafts with `draft_block` (a whole run drafts its later
-    # steps in the scripted graph).
+    # The scripted graph drafts every step: the model's kept one is swapped for one of wrong drafts
+    # (and put back after the test).
+    kept = model.__dict__["_per_weights"]
+    monkeypatch.setitem(kept, "speculator", (kept["speculator"][0], scripted(WrongDrafts(model).eval())))
     rollout = StepwiseImagination(model, manual, starts, len(starts), STEPS, seed=2, decoding="speculative")
     actions = np.random.default_rng(2).integers(5, size=(len(starts), STEPS))
     while not rollout.finished:

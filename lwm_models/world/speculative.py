@@ -163,7 +163,11 @@ class FlatDecoderBatch(DecoderBatch):
         b, steps = actions.shape
         everyone = torch.arange(b)
         later = self.uniforms[everyone[:, None], self.t[:, None] + torch.arange(steps)]  # [rows, S, 14]
-        state = self._start(actions[:, 0], later[:, 0].clone())
+        # The graph drafts every step, the first too, from the block before it: here each row's last.
+        last = torch.cat([self.last_obs, self.last_reward[:, None], self.pending[:, None]], 1)
+        stream, probs = torch.empty(b, FED, dtype=torch.long), torch.zeros(b, STEP_TOKENS)
+        fed, known = torch.zeros(b, dtype=torch.long), torch.zeros(b, dtype=torch.long)
+        state = (stream, fed, known, last, probs, self.cache.lengths, torch.empty(b, STEP_TOKENS), self.temperature)
         taken = torch.zeros(b, dtype=torch.long)
         blocks = torch.zeros(b, steps, STEP_TOKENS, dtype=torch.long)
         block_probs = torch.zeros(b, steps, STEP_TOKENS)
@@ -334,8 +338,9 @@ class _Speculator(nn.Module):
     ) -> int:
         """Steps, unconstrained, until each of the rows `rows` has taken every action of `actions`
         [rows, S] (or sampled done, with `stop_on_done`); returns the calls it took. The state
-        (`stream` to `temperature`) is that of the first step (`FlatDecoderBatch._start`); a row
-        that has sampled its block writes it to `blocks` [rows, S, 14] (and its probabilities to
+        (`stream` to `temperature`, as `FlatDecoderBatch._start` makes it) is filled here: `block`
+        holds each row's last sampled block, from which its first step is drafted. A row that has
+        sampled its block writes it to `blocks` [rows, S, 14] (and its probabilities to
         `block_probs`) and starts its next step in a later call, drafted from that block, with its
         uniform numbers from `later_uniforms` [rows, S, 14], once no row still running is more
         than `drift` steps behind it. `taken` [rows]: the steps each row has sampled. `lookahead`
@@ -344,6 +349,7 @@ class _Speculator(nn.Module):
         rows of the state and the cache."""
         steps = actions.shape[1]
         calls = 0
+        self._begin(rows, taken, actions, block, stream, fed, known, uniforms, later_uniforms)
         waiting = rows[:0]  # rows that have sampled a block and wait to start the next (`drift`)
         while rows.shape[0] > 0:
             first, later = _lookahead(rows.shape[0], threads) if lookahead < 0 else (lookahead, lookahead)
@@ -387,27 +393,47 @@ class _Speculator(nn.Module):
             on, waiting = waiting[ready], waiting[~ready]
             if on.shape[0] == 0:
                 continue
-            s, last = taken.index_select(0, on), block.index_select(0, on)
-            act = actions[on, s]
-            draft = _draft(
-                last[:, :12],
-                act,
-                last[:, 13],
-                last[:, 12],
-                self.deltas,
-                self.num_actions,
-                self.grid,
-                self.row_offset,
-                self.col_offset,
-                self.no_reward,
-            )
-            block[on] = draft
-            stream[on] = torch.cat([last[:, 13:], act[:, None], draft[:, :13]], 1)
-            fed.index_fill_(0, on, 0)
-            known.index_fill_(0, on, 0)
-            uniforms[on] = later_uniforms[on, s]
-            rows = torch.cat([rows, on]).sort()[0]  # in order: a call over all rows reads the cache in place
+            self._begin(on, taken, actions, block, stream, fed, known, uniforms, later_uniforms)
+            rows = torch.cat([rows, on]).sort()[0]  # ascending, as the decoder reads its rows
         return calls
+
+    def _begin(
+        self,
+        on: torch.Tensor,
+        taken: torch.Tensor,
+        actions: torch.Tensor,
+        block: torch.Tensor,
+        stream: torch.Tensor,
+        fed: torch.Tensor,
+        known: torch.Tensor,
+        uniforms: torch.Tensor,
+        later_uniforms: torch.Tensor,
+    ) -> None:
+        """Rows `on` start their next step (`taken` of them sampled so far), drafted from the block
+        each last sampled (in `block`)."""
+        s, last = taken.index_select(0, on), block.index_select(0, on)
+        act = actions[on, s]
+        draft = self._draft(last, act)
+        block[on] = draft
+        stream[on] = torch.cat([last[:, 13:], act[:, None], draft[:, :13]], 1)
+        fed.index_fill_(0, on, 0)
+        known.index_fill_(0, on, 0)
+        uniforms[on] = later_uniforms[on, s]
+
+    def _draft(self, last: torch.Tensor, act: torch.Tensor) -> torch.Tensor:
+        """`draft_block` from each row's last block [rows, 14] and its action."""
+        return _draft(
+            last[:, :12],
+            act,
+            last[:, 13],
+            last[:, 12],
+            self.deltas,
+            self.num_actions,
+            self.grid,
+            self.row_offset,
+            self.col_offset,
+            self.no_reward,
+        )
 
 
 def _feed(
