@@ -165,7 +165,7 @@ class _Step(nn.Module):
             else:
                 keys, values = kc[:, :, :width].index_select(0, rows), vc[:, :, :width].index_select(0, rows)
             # Batched over (row, kv head) as 3-d matmuls, the scale and the mask applied in place:
-            # the same numbers as the 4-d matmuls and their copies, 4% faster at 16-64 rows.
+            # the same numbers as 4-d matmuls, in less time (docs/speed.md has the gain).
             keys, values = keys.reshape(a * kvh, width, d), values.reshape(a * kvh, width, d)
             scores = torch.bmm(qg.reshape(a * kvh, n * group, d), keys.transpose(1, 2))
             scores = scores.mul_(self.scale).view(a, kvh, n, group, width).add_(bias)
