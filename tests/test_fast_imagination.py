@@ -21,7 +21,7 @@ from lwm_models.world import speculative
 from lwm_models.world.checkpoint import load_checkpoint
 from lwm_models.world.continuous import ContinuousBatch, OneShot
 from lwm_models.world.decoding import default_decoding, make_decoder_batch
-from lwm_models.world.flat_decoder import FlatDecoder, scripted
+from lwm_models.world.flat_decoder import FlatDecoder, _chunks, _Step, scripted
 from lwm_models.world.imagine import DecoderBatch, StepwiseImagination, board_of, condition_rows, imagine
 from lwm_models.world.registry import PRESETS, build_model
 from lwm_models.world.shipped import shipped_checkpoint
@@ -265,3 +265,64 @@ def test_the_flat_decoder_follows_the_weights():
     with torch.no_grad():
         model.blocks[0].attn.qkv.weight.add_(1.0)
     assert FlatDecoder.for_model(model) is not first
+
+
+def test_rows_of_different_lengths_attend_in_chunks_to_the_same_numbers(shipped, starts):
+    # Requests that join a running batch share calls with rows far longer than theirs; the
+    # attention then runs in chunks of rows at each chunk's own width (flat_decoder._chunks).
+    model, manual = shipped
+    n = len(starts)
+    cond = condition_rows(model.condition_on(model.on_board(manual, board_of(starts))), n)
+    flat = FlatDecoder.for_model(model)
+    cache = flat.new_cache(n)
+    everyone = torch.arange(n)
+    tokens = torch.from_numpy(first_block_tokens(starts))
+    later = torch.from_numpy(np.concatenate([[0, 1], obs_to_tokens(starts[0]), [2]]))[None]
+    with torch.inference_mode():
+        flat(tokens, cache, cond.id_table)
+        cache.lengths += tokens.shape[1]
+        old = everyone[: n // 2]  # the first half are older: 16 more steps each
+        for _ in range(16):
+            flat(later.repeat(len(old), 1), cache, None if cond.id_table is None else cond.id_table[old], rows=old)
+            cache.lengths[old] += later.shape[1]
+        step = _Step(model).eval()
+        new = torch.tensor([[0, 3, 5, 20, 28]]).repeat(n, 1)
+        last = cache.lengths + new.shape[1] - 1
+        width = int(last.max()) + 1
+        assert len(_chunks(last, width, new.shape[1], step.chunk_saving)) > 1
+        k, v = cache.k.clone(), cache.v.clone()
+        chunked = step(new, everyone, cache.lengths, cond.id_table, cache.k, cache.v)
+        step.chunk_saving = 1 << 40  # one chunk at the call's widest
+        whole = step(new, everyone, cache.lengths, cond.id_table, k, v)
+    torch.testing.assert_close(chunked, whole, rtol=0, atol=1e-6)
+    assert torch.equal(cache.k, k) and torch.equal(cache.v, v)
+
+
+def test_the_row_cache_keeps_each_row_through_joins_and_leaves():
+    torch.manual_seed(0)
+    flat = FlatDecoder.for_model(build_model("observational", PRESETS["tiny"]).eval())
+    cache, rows = flat.new_cache(0), []  # rows: (k, v) of each row held, up to its length
+
+    def joining(count: int, length: int):
+        other = flat.new_cache(count)
+        other.k.normal_()
+        other.v.normal_()
+        other.lengths[:] = length
+        return other, [(other.k[:, i, :, :length].clone(), other.v[:, i, :, :length].clone()) for i in range(count)]
+
+    for count, length in [(3, 14), (2, 40), (40, 29)]:  # the last one outgrows the store
+        other, held = joining(count, length)
+        cache.extend(other)
+        rows += held
+    cache.select(torch.tensor([0, 4, 5, 44]))  # far fewer: the store shrinks
+    rows = [rows[i] for i in (0, 4, 5, 44)]
+    assert len(cache) == 4 and cache._k.shape[1] == 8
+    other, held = joining(1, 20)
+    cache.extend(other)
+    rows += held
+    cache.select(torch.tensor([4, 1, 3]))
+    rows = [rows[i] for i in (4, 1, 3)]
+    assert cache.lengths.tolist() == [20, 40, 29]
+    for i, (k, v) in enumerate(rows):
+        length = k.shape[2]
+        assert torch.equal(cache.k[:, i, :, :length], k) and torch.equal(cache.v[:, i, :, :length], v)

@@ -21,6 +21,7 @@ import torch
 from .base import Conditioning, WorldModel
 from .decoding import make_decoder_batch
 from .imagine import Imagination, Trajectories
+from .tokens import OBS_TOKENS, REWARD_VALUES, tokens_to_obs
 
 MAX_ROWS = 256  # trajectories running at once: bounds the memory and the time of one step
 FIRST_BLOCKS = 64  # start states whose first block a batch keeps (DecoderBatch._first_block): 16 KB each
@@ -89,13 +90,19 @@ class ContinuousBatch:
         self.steps += 1
         self.row_steps += len(actions)
         self.widest = max(self.widest, len(actions))
+        # Decoded for every row at once: per request, numpy's per-call cost would dominate.
+        observations, rewards = tokens_to_obs(block[:, :OBS_TOKENS]), REWARD_VALUES[block[:, OBS_TOKENS]]
+        dones = block[:, OBS_TOKENS + 1] == 1
         keep, ended, lo = [], [], 0
         for shot in self.shots:
             k = len(shot.running)
             shot.t += 1
             shot.peak = max(shot.peak, len(self.shots))
             rows = slice(lo, lo + k)
-            done = shot.trajectories.write(shot.running, shot.t, actions[rows], block[rows], probs[rows])
+            done = dones[rows].copy()
+            shot.trajectories.put(
+                shot.running, shot.t, actions[rows], observations[rows], rewards[rows], done, probs[rows]
+            )
             if shot.t >= shot.max_steps:
                 done[:] = True
             keep.append(lo + np.flatnonzero(~done))

@@ -35,25 +35,65 @@ from .tokens import BLOCK, ID_SLOTS
 
 T = TypeVar("T")
 CAPACITY = MAX_LEN + BLOCK  # a row's last call may write up to a block of padding past MAX_LEN
+SHRINK_ABOVE = 32  # rows a RowCache's store keeps room for at least, however few it holds
+CHUNK_SAVING = 2048  # query-columns of attention a chunk of rows must save to be worth its ops (`_chunks`)
 
 
 class RowCache:
-    """Keys and values [layers, B, kv_heads, CAPACITY, d] of B rows, each of its own length."""
+    """Keys and values [layers, B, kv_heads, CAPACITY, d] of B rows, each of its own length.
+
+    The B rows are the first of a larger store that grows by doubling, so rows that join
+    (`extend`) are written in place and rows that leave (`select`) are moved down in place, each
+    copying only the columns in use: a server admits or drops a request most steps, and copying
+    every row's whole capacity then cost it 0.5-1 ms a step (docs/speed.md)."""
 
     def __init__(self, k: torch.Tensor, v: torch.Tensor, lengths: torch.Tensor) -> None:
-        self.k, self.v, self.lengths = k, v, lengths
+        self._k, self._v, self.lengths = k, v, lengths
+
+    @property
+    def k(self) -> torch.Tensor:
+        return self._k[:, : len(self.lengths)]  # each layer's rows stay contiguous
+
+    @property
+    def v(self) -> torch.Tensor:
+        return self._v[:, : len(self.lengths)]
 
     def __len__(self) -> int:
-        return self.k.shape[1]
+        return len(self.lengths)
 
+    @torch.inference_mode()  # in place on tensors made under it (a step's), which autograd never sees
     def select(self, index: torch.Tensor) -> None:
-        """Keep only the rows at `index`."""
-        self.k, self.v, self.lengths = self.k[:, index], self.v[:, index], self.lengths[index]
+        """Keep only the rows at `index`, in its order."""
+        kept = len(index)
+        if kept == len(self) and bool((index == torch.arange(kept)).all()):
+            return
+        # A row's columns past its length are never read (a call overwrites them first).
+        width = int(self.lengths[index].max()) if kept else 0
+        k, v = self._k[:, index, :, :width], self._v[:, index, :, :width]
+        if self._k.shape[1] > SHRINK_ABOVE and 4 * kept < self._k.shape[1]:
+            # A burst of rows has passed: give its memory back.
+            shape = list(self._k.shape)
+            shape[1] = 2 * kept
+            self._k, self._v = self._k.new_zeros(shape), self._v.new_zeros(shape)
+        self._k[:, :kept, :, :width] = k
+        self._v[:, :kept, :, :width] = v
+        self.lengths = self.lengths[index]
 
+    @torch.inference_mode()
     def extend(self, other: RowCache) -> None:
         """Append another cache's rows (trajectories joining between steps)."""
-        self.k = torch.cat([self.k, other.k], 1)
-        self.v = torch.cat([self.v, other.v], 1)
+        old, n = len(self), len(self) + len(other)
+        if n > self._k.shape[1]:
+            shape = list(self._k.shape)
+            shape[1] = max(n, 2 * shape[1])
+            width = int(self.lengths.max()) if old else 0
+            grown_k, grown_v = self._k.new_zeros(shape), self._v.new_zeros(shape)
+            grown_k[:, :old, :, :width] = self._k[:, :old, :, :width]
+            grown_v[:, :old, :, :width] = self._v[:, :old, :, :width]
+            self._k, self._v = grown_k, grown_v
+        width = int(other.lengths.max()) if len(other) else 0
+        self._k[:, old:n, :, :width] = other.k[:, :, :, :width]
+        self._v[:, old:n, :, :width] = other.v[:, :, :, :width]
         self.lengths = torch.cat([self.lengths, other.lengths])
 
 
@@ -73,6 +113,7 @@ class _Step(nn.Module):
         self.eps = model.ln_f.eps
         self.block = BLOCK
         self.num_ids = NUM_IDS
+        self.chunk_saving = CHUNK_SAVING
 
         def own(t: torch.Tensor) -> torch.Tensor:
             return t.detach().clone()
@@ -148,6 +189,7 @@ class _Step(nn.Module):
         # rows at its start): then the attention reads the cache in place, not a gathered copy.
         lo = int(rows[0]) if a > 0 else 0
         consecutive = a > 0 and int(rows[-1]) - lo + 1 == a  # rows ascend
+        chunks = _chunks(last, width, n, self.chunk_saving)
         for i in range(len(self.qkv_w)):
             y = F.layer_norm(x, [h], self.ln1_w[i], self.ln1_b[i], self.eps)
             qkv = F.linear(y, self.qkv_w[i], self.qkv_b[i])
@@ -160,16 +202,13 @@ class _Step(nn.Module):
             # Rows of one matmul: a kv head's query heads for each token, (token, head) within a
             # row; with one kv head that is the projection's own layout.
             qg = q.reshape(a, n, kvh, group, d).permute(0, 2, 1, 3, 4).reshape(a, kvh, n * group, d)
-            if consecutive:
-                keys, values = kc[lo : lo + a, :, :width], vc[lo : lo + a, :, :width]
+            if len(chunks) == 1:
+                att = self._attend(qg, kc, vc, rows, lo, consecutive, bias, 0, a, width)
             else:
-                keys, values = kc[:, :, :width].index_select(0, rows), vc[:, :, :width].index_select(0, rows)
-            # Batched over (row, kv head) as 3-d matmuls, the scale and the mask applied in place:
-            # the same numbers as 4-d matmuls, in less time (docs/speed.md has the gain).
-            keys, values = keys.reshape(a * kvh, width, d), values.reshape(a * kvh, width, d)
-            scores = torch.bmm(qg.reshape(a * kvh, n * group, d), keys.transpose(1, 2))
-            scores = scores.mul_(self.scale).view(a, kvh, n, group, width).add_(bias)
-            att = torch.bmm(torch.softmax(scores.view(a * kvh, n * group, width), dim=-1), values)
+                parts: list[torch.Tensor] = []
+                for chunk in chunks:
+                    parts.append(self._attend(qg, kc, vc, rows, lo, consecutive, bias, chunk[0], chunk[1], chunk[2]))
+                att = torch.cat(parts, 0)
             att = att.view(a, kvh, n, group, d).permute(0, 2, 1, 3, 4).reshape(a * n, h)
             if keep is not None:
                 att = att.index_select(0, keep)
@@ -180,6 +219,64 @@ class _Step(nn.Module):
         if keep is not None:
             x = torch.zeros(a * n, h).index_copy_(0, keep, x)
         return x.view(a, n, h)
+
+    def _attend(
+        self,
+        qg: torch.Tensor,
+        kc: torch.Tensor,
+        vc: torch.Tensor,
+        rows: torch.Tensor,
+        lo: int,
+        consecutive: bool,
+        bias: torch.Tensor,
+        r0: int,
+        r1: int,
+        width: int,
+    ) -> torch.Tensor:
+        """The attention [r1 - r0, kv_heads, n * group, d] of the call's rows r0..r1-1 (queries qg [A,
+        kv_heads, n * group, d]) over their first `width` columns of one layer's cache."""
+        b, kvh, m, d = r1 - r0, qg.shape[1], qg.shape[2], qg.shape[3]
+        if consecutive:
+            keys, values = kc[lo + r0 : lo + r1, :, :width], vc[lo + r0 : lo + r1, :, :width]
+        else:
+            mine = rows[r0:r1]
+            keys, values = kc[:, :, :width].index_select(0, mine), vc[:, :, :width].index_select(0, mine)
+        # Batched over (row, kv head) as 3-d matmuls, the scale and the mask applied in place:
+        # the same numbers as 4-d matmuls, in less time (docs/speed.md has the gain).
+        keys, values = keys.reshape(b * kvh, width, d), values.reshape(b * kvh, width, d)
+        scores = torch.bmm(qg[r0:r1].reshape(b * kvh, m, d), keys.transpose(1, 2))
+        n = bias.shape[2]
+        scores = scores.mul_(self.scale).view(b, kvh, n, m // n, width).add_(bias[r0:r1, :, :, :, :width])
+        att = torch.bmm(torch.softmax(scores.view(b * kvh, m, width), dim=-1), values)
+        return att.view(b, kvh, m, d)
+
+
+def _chunks(last: torch.Tensor, width: int, n: int, saving: int) -> list[tuple[int, int, int]]:
+    """The call's rows as consecutive chunks (first row, end, columns) whose attention runs at each
+    chunk's own width. Rows of very different lengths share a call where requests join a running
+    batch (a server's rows were 1.9x the columns they needed, on average); there the rows are in
+    order of age, so consecutive rows need similar widths. A chunk costs a few ops per layer, so
+    rows are cut in 2 or 4 only where that saves `saving` query-columns a chunk (`last`: each
+    row's last position, n queries a row; TorchScript reads no module constants)."""
+    a = last.shape[0]
+    one = [(0, a, width)]
+    if a < 2 or (width - int(last.min()) - 1) * (a - 1) * n < saving:
+        return one
+    need: list[int] = (last + 1).tolist()
+    best, best_cost = one, a * width * n
+    for k in [2, 4]:
+        if a < k:
+            break
+        chunks: list[tuple[int, int, int]] = []
+        cost = (k - 1) * saving
+        for i in range(k):
+            r0, r1 = a * i // k, a * (i + 1) // k
+            w = max(need[r0:r1])
+            chunks.append((r0, r1, w))
+            cost += (r1 - r0) * w * n
+        if cost < best_cost:
+            best, best_cost = chunks, cost
+    return best
 
 
 class FlatDecoder:
