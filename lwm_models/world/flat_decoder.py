@@ -260,7 +260,8 @@ def _chunks(last: torch.Tensor, width: int, n: int, saving: int) -> list[tuple[i
     row's last position, n queries a row; TorchScript reads no module constants)."""
     a = last.shape[0]
     one = [(0, a, width)]
-    if a < 2 or (width - int(last.min()) - 1) * (a - 1) * n < saving:
+    # Two chunks save at most the later half's rows times the spread of widths; four, less per chunk.
+    if a < 2 or (width - int(last.min()) - 1) * ((a + 1) // 2) * n < saving:
         return one
     need: list[int] = (last + 1).tolist()
     best, best_cost = one, a * width * n
