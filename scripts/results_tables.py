@@ -305,7 +305,7 @@ def _span(values: list[float], fmt: str = ".2f") -> str:
     return lo if lo == hi else f"{lo}-{hi}"
 
 
-STRESS_RUNS = ("speed/ros-stress-load-run9.log", "speed/ros-stress-load-run10.log")  # the current code's
+STRESS_RUNS = ("speed/ros-stress-load-run11.log", "speed/ros-stress-load-run12.log")  # the current code's
 
 
 def speed(base: str) -> list[str]:
