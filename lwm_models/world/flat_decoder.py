@@ -45,7 +45,7 @@ class RowCache:
     The B rows are the first of a larger store that grows by doubling, so rows that join
     (`extend`) are written in place and rows that leave (`select`) are moved down in place, each
     copying only the columns in use: a server admits or drops a request most steps, and copying
-    every row's whole capacity then cost it 0.5-1 ms a step (docs/speed.md)."""
+    every row's whole capacity then cost its worker about 0.5 ms a step of 8 rows (docs/speed.md)."""
 
     def __init__(self, k: torch.Tensor, v: torch.Tensor, lengths: torch.Tensor) -> None:
         self._k, self._v, self.lengths = k, v, lengths
