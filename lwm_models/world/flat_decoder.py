@@ -35,7 +35,7 @@ from .tokens import BLOCK, ID_SLOTS
 
 T = TypeVar("T")
 CAPACITY = MAX_LEN + BLOCK  # a row's last call may write up to a block of padding past MAX_LEN
-SHRINK_ABOVE = 32  # rows a RowCache's store keeps room for at least, however few it holds
+SHRINK_ABOVE = 32  # a RowCache's store shrinks (to twice its rows) only when it has room for more rows than this
 CHUNK_SAVING = 2048  # query-columns of attention a chunk of rows must save to be worth its ops (`_chunks`)
 
 
