@@ -20,8 +20,7 @@ import torch
 
 from .base import Conditioning, WorldModel
 from .decoding import make_decoder_batch
-from .imagine import Imagination, Trajectories
-from .tokens import OBS_TOKENS, REWARD_VALUES, tokens_to_obs
+from .imagine import Imagination, Trajectories, decode_blocks
 
 MAX_ROWS = 256  # trajectories running at once: bounds the memory and the time of one step
 FIRST_BLOCKS = 64  # start states whose first block a batch keeps (DecoderBatch._first_block): 16 KB each
@@ -91,8 +90,7 @@ class ContinuousBatch:
         self.row_steps += len(actions)
         self.widest = max(self.widest, len(actions))
         # Decoded for every row at once: per request, numpy's per-call cost would dominate.
-        observations, rewards = tokens_to_obs(block[:, :OBS_TOKENS]), REWARD_VALUES[block[:, OBS_TOKENS]]
-        dones = block[:, OBS_TOKENS + 1] == 1
+        observations, rewards, dones = decode_blocks(block)
         keep, ended, lo = [], [], 0
         for shot in self.shots:
             k = len(shot.running)

@@ -71,10 +71,7 @@ class RowCache:
         width = int(self.lengths[index].max()) if kept else 0
         k, v = self._k[:, index, :, :width], self._v[:, index, :, :width]
         if self._k.shape[1] > SHRINK_ABOVE and 4 * kept < self._k.shape[1]:
-            # A burst of rows has passed: give its memory back.
-            shape = list(self._k.shape)
-            shape[1] = 2 * kept
-            self._k, self._v = self._k.new_zeros(shape), self._v.new_zeros(shape)
+            self._reallocate(2 * kept)  # a burst of rows has passed: give its memory back
         self._k[:, :kept, :, :width] = k
         self._v[:, :kept, :, :width] = v
         self.lengths = self.lengths[index]
@@ -84,17 +81,21 @@ class RowCache:
         """Append another cache's rows (trajectories joining between steps)."""
         old, n = len(self), len(self) + len(other)
         if n > self._k.shape[1]:
-            shape = list(self._k.shape)
-            shape[1] = max(n, 2 * shape[1])
             width = int(self.lengths.max()) if old else 0
-            grown_k, grown_v = self._k.new_zeros(shape), self._v.new_zeros(shape)
-            grown_k[:, :old, :, :width] = self._k[:, :old, :, :width]
-            grown_v[:, :old, :, :width] = self._v[:, :old, :, :width]
-            self._k, self._v = grown_k, grown_v
+            k, v = self._k[:, :old, :, :width], self._v[:, :old, :, :width]
+            self._reallocate(max(n, 2 * self._k.shape[1]))
+            self._k[:, :old, :, :width] = k
+            self._v[:, :old, :, :width] = v
         width = int(other.lengths.max()) if len(other) else 0
         self._k[:, old:n, :, :width] = other.k[:, :, :, :width]
         self._v[:, old:n, :, :width] = other.v[:, :, :, :width]
         self.lengths = torch.cat([self.lengths, other.lengths])
+
+    def _reallocate(self, rows: int) -> None:
+        """A new, zeroed store with room for `rows` rows (the caller copies back what it keeps)."""
+        shape = list(self._k.shape)
+        shape[1] = rows
+        self._k, self._v = self._k.new_zeros(shape), self._v.new_zeros(shape)
 
 
 class _Step(nn.Module):

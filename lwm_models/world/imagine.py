@@ -266,6 +266,11 @@ def _pad_steps(uniforms: torch.Tensor, steps: int) -> torch.Tensor:
     return torch.nn.functional.pad(uniforms, (0, 0, 0, steps - uniforms.shape[1]))
 
 
+def decode_blocks(block: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Sampled blocks [k, 14] as a step's observations [k, 4, 3], rewards [k] and dones [k]."""
+    return tokens_to_obs(block[:, :OBS_TOKENS]), REWARD_VALUES[block[:, OBS_TOKENS]], block[:, OBS_TOKENS + 1] == 1
+
+
 class Trajectories:
     """What has been imagined of n trajectories so far: step t of trajectory i at [i, t]. Filled
     from sampled token blocks here (`write`), or from decoded steps (`put`, `put_trajectory`: what
@@ -284,8 +289,7 @@ class Trajectories:
     def write(self, which: np.ndarray, t: int, actions: np.ndarray, block: np.ndarray, probs: np.ndarray) -> np.ndarray:
         """Step t of trajectories `which` (their actions, sampled blocks and token probabilities);
         returns which of them sampled done."""
-        done = block[:, OBS_TOKENS + 1] == 1
-        observations, rewards = tokens_to_obs(block[:, :OBS_TOKENS]), REWARD_VALUES[block[:, OBS_TOKENS]]
+        observations, rewards, done = decode_blocks(block)
         self.put(which, t, actions, observations, rewards, done, probs)
         return done
 
