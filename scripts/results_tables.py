@@ -305,7 +305,12 @@ def _span(values: list[float], fmt: str = ".2f") -> str:
     return lo if lo == hi else f"{lo}-{hi}"
 
 
-STRESS_RUNS = ("speed/ros-stress-load-run11.log", "speed/ros-stress-load-run12.log")  # the current code's
+STRESS_RUNS = (  # the current code's (e0942ad; 95ea3d3 changed how it reads, not what it does)
+    "speed/ros-stress-load-run11.log",
+    "speed/ros-stress-load-run12.log",
+    "speed/ros-stress-load-run13.log",
+    "speed/ros-stress-load-run14.log",
+)
 
 
 def speed(base: str) -> list[str]:
@@ -348,9 +353,10 @@ def speed(base: str) -> list[str]:
     ref = " / ".join(f"{r[0][0]:.1f} calls/s, p99 {r[0][1]} ms" for r in runs)
     now = " / ".join(f"{r[1][0]:.1f} calls/s, p99 {r[1][1]} ms" for r in runs)
     ratios = ", ".join(f"{r[1][0] / r[0][0]:.2f}x" for r in runs)
+    others = ", ".join(f"[run {i}]({base}results/{name})" for i, name in enumerate(STRESS_RUNS[1:], 2))
     lines.append(
-        f"| the world-model server, 8 clients ({_link(STRESS_RUNS[0], base)}, "
-        f"[run 2]({base}results/{STRESS_RUNS[1]})) | {ref} | {now} | {ratios} | >= 2x, p99 < 200 ms | - |"
+        f"| the world-model server, 8 clients ({_link(STRESS_RUNS[0], base)}, {others}) "
+        f"| {ref} | {now} | {ratios} | >= 2x, p99 < 200 ms | - |"
     )
     return lines
 
