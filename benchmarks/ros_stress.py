@@ -1,6 +1,7 @@
 """The system under load and abuse, on the real multi-process system (loopback only, bounded).
 
     .venv/bin/python benchmarks/ros_stress.py load [--clients 8] [--calls 1000] [--baseline-calls 200]
+    .venv/bin/python benchmarks/ros_stress.py paths [--pairs 3] [--clients 8] [--calls 500]
     .venv/bin/python benchmarks/ros_stress.py malformed [--payloads 10000]
     .venv/bin/python benchmarks/ros_stress.py kill [--iterations 6]
     .venv/bin/python benchmarks/ros_stress.py shutdown [--clients 8]
@@ -12,6 +13,13 @@ system without a human (environment, world-model server, planner). Prints calls/
 p50/p99 latency of both, their ratios (target: N=8 clients get >= 5x the throughput of one,
 p99 < 1 s, 0 failures), and the latency of `/env/reset` probed during the load (the other nodes
 still answer).
+
+paths: the same load of N clients on the system started with the reference decoding path
+(`LWM_DECODING=reference`, every process) and on the default path, in alternating launches, a
+pair at a time: each pair's calls/s, p50/p99 and ratio, and the median over the pairs (target of
+issue 32: >= 2x the reference's calls/s with a p99 under 200 ms). This machine's speed moves by
+tens of percent between minutes, so a pair is two launches one after the other and the median of
+several pairs is the figure.
 
 malformed: payloads that are not valid messages (invalid JSON, wrong types, 1 MB strings, deeply
 nested JSON, NaN, out-of-range and 10,000-step action lists, unicode) spread over every topic and
@@ -262,6 +270,54 @@ def cmd_load(args: argparse.Namespace) -> int:
     return 0 if ok else 1
 
 
+def load_on(decoding: str | None, clients: int, calls: int) -> dict:
+    """The load of `clients` clients on a system started with LWM_DECODING=`decoding` (None: the
+    default path): calls/s, p50/p99 (ms), failures and the launcher's exit code."""
+    before = os.environ.pop("LWM_DECODING", None)
+    if decoding is not None:
+        os.environ["LWM_DECODING"] = decoding
+    try:
+        system = System()
+        try:
+            lat, fail, wall, _, _ = run_clients(clients, calls)
+        finally:
+            code = system.stop()
+    finally:
+        os.environ.pop("LWM_DECODING", None)
+        if before is not None:
+            os.environ["LWM_DECODING"] = before
+    return {"rate": len(lat) / wall, "p50": pct(lat, 50), "p99": pct(lat, 99), "failures": fail, "exit": code}
+
+
+def cmd_paths(args: argparse.Namespace) -> int:
+    ratios, p99s, failures = [], [], 0
+    for k in range(1, args.pairs + 1):
+        ref = load_on("reference", args.clients, args.calls)
+        now = load_on(None, args.clients, args.calls)
+        ratio = now["rate"] / ref["rate"]
+        ratios.append(ratio)
+        p99s.append(now["p99"])
+        failures += ref["failures"] + now["failures"]
+        both = ratio >= 2 and now["p99"] < 200
+        print(
+            f"pair {k}: reference {ref['rate']:.1f} calls/s (p50 {ref['p50']:.0f} ms, p99 {ref['p99']:.0f} ms), "
+            f"default {now['rate']:.1f} calls/s (p50 {now['p50']:.0f} ms, p99 {now['p99']:.0f} ms): "
+            f"{ratio:.2f}x, {'both targets met' if both else 'NOT both met'}; failures "
+            f"{ref['failures'] + now['failures']}, launcher exits {ref['exit']} {now['exit']}",
+            flush=True,
+        )
+    ratio, p99 = float(np.median(ratios)), float(np.median(p99s))
+    met = sum(r >= 2 and p < 200 for r, p in zip(ratios, p99s))
+    ok = ratio >= 2 and p99 < 200 and failures == 0
+    print(
+        f"{args.clients} clients, {args.pairs} pairs: median {ratio:.2f}x the reference's calls/s "
+        f"(each {', '.join(f'{r:.2f}x' for r in ratios)}; target >= 2x), median p99 {p99:.0f} ms "
+        f"(target < 200 ms); both targets in {met} of {args.pairs} pairs; failures {failures}: "
+        f"{'met' if ok else 'NOT met'}"
+    )
+    return 0 if ok else 1
+
+
 # ---------------------------------------------------------------------------------- malformed
 TOPICS = {  # what each node reads, and the message kind it expects
     "/feedback/manual": "manual",
@@ -506,6 +562,13 @@ def cmd_shutdown(args: argparse.Namespace) -> int:
     return 0 if ok else 1
 
 
+def _at_least_one(text: str) -> int:
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be 1 or more, got {value}")
+    return value
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = parser.add_subparsers(dest="part", required=True)
@@ -514,6 +577,11 @@ def main() -> int:
     p.add_argument("--calls", type=int, default=1000, help="calls per client")
     p.add_argument("--baseline-calls", type=int, default=200, help="calls of the lone client")
     p.set_defaults(func=cmd_load)
+    p = sub.add_parser("paths", help="the load on the reference path and on the default, in alternating launches")
+    p.add_argument("--pairs", type=_at_least_one, default=3, help="launches of each path, alternating")
+    p.add_argument("--clients", type=int, default=8, help="concurrent client processes")
+    p.add_argument("--calls", type=int, default=500, help="calls per client")
+    p.set_defaults(func=cmd_paths)
     p = sub.add_parser("malformed", help="bad payloads on every topic and service the nodes read")
     p.add_argument("--payloads", type=int, default=10000, help="how many (spread over the targets)")
     p.set_defaults(func=cmd_malformed)
