@@ -28,6 +28,7 @@ from ..messenger.constants import ALL_TRIPLES, SPLITS, Triple
 from .pools import DescriptionPools, receiving_splits
 
 STRESS_FILE = Path(__file__).with_name("stress_set.json")
+FRESH_FILE = Path(__file__).with_name("stress_fresh.json")
 PARTS = ("tune", "dev", "heldout", "written")
 
 
@@ -66,6 +67,19 @@ def load_stress(part: str | None = None, style: str | None = None, path: str | P
     if style is not None and style not in styles:
         raise LwmError(f"unknown stress-set style {style!r}; known: {', '.join(styles)}")
     return [e for e in entries if (part is None or e.split == part) and (style is None or e.style == style)]
+
+
+def load_fresh(unusable: bool = False, path: str | Path = FRESH_FILE) -> list:
+    """The fresh held-out part (stress_fresh.json): descriptions of all 108 triples, three each in
+    three of the seven styles, written from the game's facts alone by a writer who never saw the
+    parser, the reading code or the other parts; reported on, never fitted or tuned on. With
+    `unusable`, its descriptions that carry no usable fact or only some (dicts with `kind`:
+    "gibberish", "other-game" or "vague")."""
+    doc = json.loads(Path(path).read_text(encoding="utf-8"))
+    if unusable:
+        return list(doc["unusable"])
+    fields = ("text", "identity", "movement", "role", "style")
+    return [StressEntry(**{k: e[k] for k in fields}, split="fresh") for e in doc["entries"]]
 
 
 def stress_texts(

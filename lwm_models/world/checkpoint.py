@@ -21,6 +21,7 @@ from safetensors.torch import load_file, save_file
 
 from ..errors import LwmError
 from .base import WorldModel
+from .manual_reading import CALIBRATION_FILE, Calibration
 from .registry import build_model, config_from_dict, config_to_dict
 
 FORMAT = "lwm-world-model"
@@ -154,4 +155,6 @@ def load_checkpoint(directory: str | Path, kind: str | None = None) -> tuple[Wor
         model.max_readings = int(config["hedged_reading"].get("max_readings", model.max_readings))
         # of them, those predicting past the first steps (the likeliest then; 0: all)
         model.keep_readings = int(config["hedged_reading"].get("keep_readings", model.keep_readings))
+    if hasattr(model, "reading_calibration") and (directory / CALIBRATION_FILE).is_file():
+        model.reading_calibration = Calibration.load(directory / CALIBRATION_FILE)  # world/manual_reading.py
     return model.eval(), config

@@ -453,15 +453,34 @@ class HedgedReading:
         # Ground the words' entities on the board before reading (`ground_words`); a checkpoint's
         # config turns it on (`hedged_reading.ground`).
         self.ground = False
+        # The calibration of the manual's reading before any step (world/manual_reading.py), shipped
+        # beside the checkpoint; None: imagination reads the words' readings by their priors.
+        self.reading_calibration = None
 
-    def read_manual(self, descriptions, encoder, parse=None) -> ManualBatch:
+    def read_manual(self, descriptions, encoder, parse=None, facts=()) -> ManualBatch:
+        """The manual of three descriptions as this model reads it; with a reading calibration,
+        also each description's evidence for the manual's reading and the `facts` a person stated
+        (`manual_reading`)."""
         batch = WorldModel.read_manual(self, descriptions, encoder)
         batch.routed = torch.tensor([[words_code(d, encoder) for d in descriptions]])
+        if self.reading_calibration is not None:
+            from .manual_reading import evidence_for
+
+            batch.evidence = evidence_for(self, encoder, list(descriptions), self.reading_calibration.heads)
+            batch.facts = tuple(facts)
         return batch
 
     def on_board(self, manual: ManualBatch, board: torch.Tensor) -> ManualBatch:
-        """With `ground` on, the manual with its words grounded on the board (`ground_words`; one
-        board row per manual, or one for all)."""
+        """The manual read on the board: with evidence (`read_manual`), its reading
+        (`manual_reading.read_manual`), which imagination then follows (`condition_on`); else,
+        with `ground` on, its words grounded on the board (`ground_words`; one board row per
+        manual, or one for all)."""
+        if manual.evidence is not None and self.reading_calibration is not None:
+            from .manual_reading import read_manual
+
+            ids = [int(i) for i in torch.as_tensor(board).reshape(-1, torch.as_tensor(board).shape[-1])[0] if i > 0]
+            reading = read_manual(manual.evidence, ids, self.reading_calibration, manual.facts)
+            return replace(manual, reading=reading)
         if not self.ground or manual.routed is None:
             return manual
         board = torch.as_tensor(board).long()
@@ -516,10 +535,30 @@ class HedgedReading:
         followed a reading the words deny and the read-back's movements fell from 98% to 89% right
         (the dataset's text, 30 NewAll test games)."""
         self.eval()
-        if not self.mixture:
+        if manual.reading is not None:
+            r = self._configured(manual)
+        elif not self.mixture:
             return self.condition(manual)
-        r = self._readings(manual)
+        else:
+            r = self._readings(manual)
         return Conditioning(id_table=self._tables(r), reading_owner=r.owner, reading_log_prior=r.log_prior)
+
+    def _configured(self, manual: ManualBatch) -> Readings:
+        """The readings of a manual read on its board (`manual.reading`): its likeliest complete
+        readings with their probabilities, each description conditioned on the model's own reading
+        where that is the triple the reading gives it, else on that triple's prototype."""
+        keys, values = self._read(manual)
+        _, nearest = prototype_distances(keys, values, self.proto_keys, self.proto_values).min(-1)
+        index = {t: k for k, t in enumerate(ALL_TRIPLES)}
+        ks, vs, priors = [], [], []
+        for triples, p in manual.reading.configurations():
+            picks = [index[t] for t in triples]
+            ks.append(torch.stack([keys[0, j] if nearest[0, j] == t else self.proto_keys[t] for j, t in enumerate(picks)]))
+            vs.append(torch.stack([values[0, j] if nearest[0, j] == t else self.proto_values[t] for j, t in enumerate(picks)]))
+            priors.append(p)
+        stands = torch.zeros(1, 3, dtype=torch.bool)
+        log_prior = torch.log(torch.tensor(priors, dtype=torch.float64)).float()
+        return Readings(torch.stack(ks), torch.stack(vs), torch.zeros(len(ks), dtype=torch.long), log_prior, stands, stands)
 
     def predictions(
         self, tokens: torch.Tensor, lengths: torch.Tensor, manual: ManualBatch

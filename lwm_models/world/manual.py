@@ -5,7 +5,7 @@ policy reads the text alone)."""
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 import torch
@@ -31,6 +31,11 @@ class ManualBatch:
         or what its words decide (hedged models, `hedged_reading.words_code`).
     among: [B, 3, 17] bool, per description the entity ids it may be about on its board (a hedged
         model grounding its words, `hedged_reading.ground_words`); None: any.
+    evidence: a batch-of-one manual's evidence per description for its reading
+        (`manual_reading.Evidence`, a model with a reading calibration); None: not read that way.
+    facts: what a person stated of the board's entities ({"entity", "field", "value"}), which the
+        reading holds for sure.
+    reading: the manual read on its board (`manual_reading.ManualReading`, set by `on_board`).
     """
 
     features: torch.Tensor | None = None
@@ -38,6 +43,9 @@ class ManualBatch:
     parse: torch.Tensor | None = None
     routed: torch.Tensor | None = None
     among: torch.Tensor | None = None
+    evidence: list | None = None
+    facts: tuple = ()
+    reading: object | None = field(default=None, compare=False)
 
     def index(self, idx: torch.Tensor) -> ManualBatch:
         fields = (self.features, self.mask, self.parse, self.routed, self.among)

@@ -1,0 +1,213 @@
+"""Fit a model's reading calibration (lwm_models/world/manual_reading.py) and write it beside the
+checkpoint as reading.json; with --words-only, the calibration of the keyword parser alone
+(lwm_models/text/words_reading.json), which models without prototypes use.
+
+What it is fitted on, never on what a report is made on:
+- descriptions: the stress set's tune, dev, written and first held-out parts (the fresh part is
+  the held-out one now), 24 of the generator's descriptions
+  per triple, (with --texts) the dataset's human-written descriptions of the training and dev
+  splits, and stray text: generated descriptions with the entity's name swapped for a thing that is
+  in no Messenger game, and strings of random letters, which are about no entity on any board;
+- manuals (the two temperatures): 300 games of the three dev splits, each read with descriptions
+  drawn from the stress set's hand-written part, the text most like a person's own.
+
+    flock /tmp/lwm-heavy.lock .venv/bin/python scripts/fit_reading.py --model emma-lwm-hedged \\
+        --texts ../shared/data/messenger-texts/text_train.json ../shared/data/messenger-texts/text_val.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import re
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import torch
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from lwm_models.data.splits import load_split  # noqa: E402
+from lwm_models.messenger.constants import ALL_TRIPLES, IDENTITIES, MOVEMENTS, ROLES  # noqa: E402
+from lwm_models.text.generator import generate_descriptions  # noqa: E402
+from lwm_models.text.parser import IDENTITY_KEYWORDS  # noqa: E402
+from lwm_models.text.pools import DescriptionPools  # noqa: E402
+from lwm_models.text.stress import load_stress  # noqa: E402
+from lwm_models.world.checkpoint import load_checkpoint  # noqa: E402
+from lwm_models.world.frozen_text import FrozenTextEncoder  # noqa: E402
+from lwm_models.world.manual_reading import (  # noqa: E402
+    CALIBRATION_FILE,
+    Calibration,
+    evidence_for,
+    fit_fact_weights,
+    fit_head,
+    fit_identity_rates,
+    read_manual,
+    sentence_vectors,
+)
+
+STRESS_PARTS = ("tune", "dev", "written", "heldout")  # the fresh part is held out in their place
+FOLDS = 5
+DEV_SPLITS = ("newcombo-dev", "newattr-dev", "newall-dev")
+GENERATED_PER_TRIPLE = 24
+STRAY_NOUNS = ("dragon", "car", "tree", "lamp", "cat", "wizard", "bus", "teapot", "zombie", "knight", "train", "cow")
+STRAY_WEIGHT = 0.1  # of a source's weight: a person's text is seldom about no entity of the game
+TEMPERATURES = np.round(np.arange(0.2, 4.01, 0.05), 2)
+
+
+def fitting_texts(texts: list[Path], seed: int) -> dict[str, dict[tuple, list[str]]]:
+    """Descriptions of known truth to fit on, by source and triple."""
+    sources: dict[str, dict[tuple, list[str]]] = {"stress": {}, "generator": {}, "dataset": {}}
+    for part in STRESS_PARTS:
+        for e in load_stress(part):
+            sources["stress"].setdefault(e.triple, []).append(e.text)
+    rng = np.random.default_rng(seed)
+    for t in ALL_TRIPLES:
+        found = generate_descriptions(t)
+        picks = rng.choice(len(found), size=min(GENERATED_PER_TRIPLE, len(found)), replace=False)
+        sources["generator"][t] = [found[i] for i in sorted(picks)]
+    if texts:
+        pools = DescriptionPools.from_files(texts, seed=seed)
+        for split in ("train", *DEV_SPLITS):
+            for t, found in pools.pools[split].items():
+                if (split, t) not in pools.fallbacks:
+                    sources["dataset"].setdefault(t, []).extend(found)
+    # Stray text is about no board entity: its identity is never a board's, its movement and role
+    # (where it has any) are the swapped description's, and random letters state nothing.
+    stray: dict[tuple, list[str]] = {}
+    for t in ALL_TRIPLES:
+        for text in sources["generator"][t][:3]:
+            names = sorted(IDENTITY_KEYWORDS[t[0]], key=len, reverse=True)
+            noun = STRAY_NOUNS[int(rng.integers(len(STRAY_NOUNS)))]
+            swapped = re.sub(r"\b(" + "|".join(map(re.escape, names)) + r")\b", noun, text, flags=re.I)
+            if swapped != text:
+                stray.setdefault(("?", t[1], t[2]), []).append(swapped)
+    letters = list("abcdefghijklmnopqrstuvwxyz")
+    for _ in range(150):
+        words = ["".join(rng.choice(letters, size=int(rng.integers(2, 9)))) for _ in range(int(rng.integers(2, 9)))]
+        stray.setdefault(("?", "?", "?"), []).append(" ".join(words))
+    sources["stray"] = stray
+    return {s: {t: list(dict.fromkeys(v)) for t, v in by.items()} for s, by in sources.items() if by}
+
+
+def game_nll(readings_by_tau, truths) -> float:
+    total = 0.0
+    for reading, (assignment, movements) in zip(readings_by_tau, truths, strict=True):
+        options, p = reading.assignments()
+        total -= math.log(max(p[options.index(assignment)], 1e-12))
+        for e, mv in movements.items():
+            total -= math.log(max(reading.movement_p(e)[MOVEMENTS.index(mv)], 1e-12))
+    return total
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--model", default="emma-lwm-hedged", help="a shipped checkpoint's name, or a checkpoint folder")
+    ap.add_argument(
+        "--words-only", action="store_true", help="fit the keyword parser's own calibration instead (no model, no head)"
+    )
+    ap.add_argument("--texts", type=Path, nargs="*", default=[], help="the dataset's human-written description files")
+    ap.add_argument("--games", type=int, default=300, help="dev games whose manuals fit the temperatures")
+    ap.add_argument("--seed", type=int, default=0)
+    args = ap.parse_args()
+    torch.set_num_threads(2)
+    folder = Path(args.model) if Path(args.model).is_dir() else ROOT / "lwm_models" / "checkpoints" / args.model
+    model = None
+    if args.words_only:
+        encoder = FrozenTextEncoder()
+        out = ROOT / "lwm_models" / "text" / "words_reading.json"
+    else:
+        model, _ = load_checkpoint(folder)
+        model.eval()
+        encoder = model.frozen_text_encoder()
+        out = folder / CALIBRATION_FILE
+    sources = fitting_texts(args.texts, args.seed)
+    # Each source weighs the same: the dataset's plain text, far the most, would otherwise set the
+    # rates that free-form words are read with.
+    texts, truth, weights = [], [], []
+    for by_triple in sources.values():
+        n = sum(len(v) for v in by_triple.values())
+        for t, found in by_triple.items():
+            texts += found
+            truth += [t] * len(found)
+            weights += [1.0 / n] * len(found)
+    weights = [w * len(texts) / len(sources) for w in weights]
+    weights = [w * (STRAY_WEIGHT if t[0] == "?" else 1.0) for w, t in zip(weights, truth, strict=True)]
+    print(f"fitting on {len(texts)} descriptions: " + ", ".join(
+        f"{s} {sum(len(v) for v in b.values())}" for s, b in sources.items()), flush=True)  # fmt: skip
+    vectors = sentence_vectors(encoder, texts)
+    weights_a = np.asarray(weights)
+    # The stacking weights are fitted on heads that never saw the description (5 folds), so that
+    # they weigh the head as it reads new text, not text it has fitted.
+    folds = np.random.default_rng(args.seed).integers(FOLDS, size=len(texts))
+    heads, held_out = {}, {}
+    for k, name in ((1, "movement"), (2, "role")):
+        values = MOVEMENTS if name == "movement" else ROLES
+        known = np.array([t[k] in values for t in truth])
+        y = np.array([values.index(t[k]) if t[k] in values else 0 for t in truth])
+        lp = np.zeros((len(texts), 3))
+        if args.words_only:  # the keyword parser alone: no sentence head
+            held_out[name] = (lp, y, known)
+            continue
+        for f in range(FOLDS):
+            fit = known & (folds != f)
+            lp[folds == f] = fit_head(vectors[fit], y[fit], weights_a[fit]).log_probs(vectors[folds == f])
+        held_out[name] = (lp, y, known)
+        heads[name] = fit_head(vectors[known], y[known], weights_a[known])
+    plain = evidence_for(model, encoder, texts)
+    calibration = Calibration(fit_identity_rates(plain, [t[0] for t in truth], weights), {}, heads)
+    for name, (lp, y, known) in held_out.items():
+        features = np.stack([replace(ev, sentence={name: tuple(row)}).features(name) for ev, row in zip(plain, lp)])
+        calibration.weights[name] = fit_fact_weights(features[known], y[known], weights_a[known])
+    evidence = [replace(ev, sentence={n: tuple(held_out[n][0][i]) for n in held_out}) for i, ev in enumerate(plain)]
+    index = {x: i for i, x in enumerate(texts)}
+
+    # The temperatures: on whole manuals of the text most like a person's own, the stress set's
+    # hand-written part (the rest was written from templates and phrase banks).
+    written: dict[tuple, list[str]] = {}
+    for e in load_stress("written"):
+        written.setdefault(e.triple, []).append(e.text)
+    rng = np.random.default_rng(args.seed)
+    games = [g for s in DEV_SPLITS for g in load_split(s)]
+    games = [games[i] for i in rng.choice(len(games), size=min(args.games, len(games)), replace=False)]
+    manuals, truths = [], []
+    for game in games:
+        triples = [(e.identity, e.movement, e.role) for e in game.entities]
+        drawn = [written[t][int(rng.integers(len(written[t])))] for t in triples]
+        manuals.append(([evidence[index[x]] for x in drawn], [IDENTITIES[t[0]] for t in triples]))
+        holder = {t[2]: IDENTITIES[t[0]] for t in triples}
+        truths.append((tuple(holder[r] for r in ROLES), {IDENTITIES[t[0]]: t[1] for t in triples}))
+
+    def nll(tau: float, tau_m: float) -> float:
+        c = replace(calibration, temperature=tau, movement_temperature=tau_m)
+        return game_nll([read_manual(ev, board, c) for ev, board in manuals], truths)
+
+    calibration.temperature = float(min(TEMPERATURES, key=lambda t: nll(t, 1.0)))
+    calibration.movement_temperature = float(min(TEMPERATURES, key=lambda t: nll(calibration.temperature, t)))
+    calibration.fitted_on = {
+        "descriptions": len(texts),
+        "sources": {s: sum(len(v) for v in b.values()) for s, b in sources.items()},
+        "stress parts": list(STRESS_PARTS),
+        "generator": f"{GENERATED_PER_TRIPLE} per triple",
+        "dataset": [p.name for p in args.texts] and ["train", *DEV_SPLITS],
+        "stray weight": STRAY_WEIGHT,
+        "temperature manuals": f"{len(games)} games of {', '.join(DEV_SPLITS)}, the stress set's written part",
+        "model": "the keyword parser alone" if model is None else folder.name,
+        "seed": args.seed,
+        "command": " ".join(["scripts/fit_reading.py", *sys.argv[1:]]),
+    }
+    calibration.save(out)
+    print(f"temperature {calibration.temperature}, movement {calibration.movement_temperature}")
+    for cls, r in sorted(calibration.identity.items()):
+        print(f"  identity {cls:18s} {r}")
+    for name, w in calibration.weights.items():
+        print(f"  {name:8s} words {w[0]:.2f}, model {w[1]:.2f}, sentence {w[2]:.2f}, bias {w[3:]}")
+    print(f"written to {out}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
