@@ -454,7 +454,13 @@ def test_the_server_conditions_on_the_words_as_grounded_and_computes_them_once(h
     srv = WorldModelServer(checkpoint=HEDGED, encoder=FrozenTextEncoder())
     srv.set_manual(["the plane chases you and it is deadly.", "the ball has the message.", "the robot is the goal."])
     state = srv.state()
-    # a model that does not ground reads the manual the same on any board: computed once
+    # the manual's reading is of one board: computed once for it, anew for another board
+    read = srv._conditioning(state.batch, state, own_board)
+    assert srv._conditioning(state.batch, state, own_board) is read
+    assert srv._conditioning(state.batch, state, other_board) is not read
+    # without a reading, a model that does not ground reads the manual the same on any board
+    calibration, srv.model.reading_calibration = srv.model.reading_calibration, None
+    state.batch = srv.model.read_manual(state.manual, srv.encoder)
     srv.model.ground = False
     first = srv._conditioning(state.batch, state, own_board)
     assert srv._conditioning(state.batch, state, other_board) is first
@@ -467,6 +473,7 @@ def test_the_server_conditions_on_the_words_as_grounded_and_computes_them_once(h
         assert on_other is not on_own and [w // 16 for w in state.cond_words[:3]] == [plane, ball, queen]
     finally:
         srv.model.ground = False
+        srv.model.reading_calibration = calibration
 
 
 def _generated_episodes(model, tmp_path):

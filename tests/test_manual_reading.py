@@ -3,6 +3,7 @@ whatever the order of the descriptions, facts a person states held for sure, que
 unsure, and the served model imagining under it."""
 
 import itertools
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -32,7 +33,8 @@ def served():
 
 def reading(served, descriptions, facts=()):
     model, encoder = served
-    return model.on_board(model.read_manual(descriptions, encoder, facts=facts), BOARD).reading
+    batch = replace(model.read_manual(descriptions, encoder), facts=tuple(facts))
+    return model.on_board(batch, BOARD).reading
 
 
 def test_a_clear_manual_is_read_right_and_sure(served):

@@ -122,6 +122,12 @@ class ServiceImaginer:
                 pass  # the session expires on its own
         return out.result(opened.get("manual_version", 0))
 
+    def read(self, start: np.ndarray) -> dict | None:
+        """The manual's reading on the board of `start` [4, 3] (the service's op `read`): None
+        where the world model reads no such thing (only models with a reading calibration do)."""
+        answer = self.request({"op": "read", "observation": np.asarray(start, dtype=np.uint8).tolist()})
+        return answer if "reading" in answer else None
+
     def replay(self, starts: np.ndarray, actions: list[list[int]], max_steps: int = 32, seed: int = 0) -> Imagination:
         """One-shot: each trajectory replays its action sequence (padded with 'stay')."""
         starts = np.asarray(starts, dtype=np.uint8)
@@ -164,6 +170,14 @@ class LocalImaginer:
             temperature=temperature,
             constrained=self.constrained if constrained is None else constrained,
         )
+
+
+    def read(self, start: np.ndarray) -> dict | None:
+        """The manual's reading on the board of `start` [4, 3], as ServiceImaginer.read answers it."""
+        from ..world.imagine import board_of
+
+        read = self.world.on_board(self.manual, board_of(np.asarray(start, dtype=np.uint8)[None])).reading
+        return None if read is None else read.answer()
 
 
 def in_process(server) -> Callable[[dict], dict]:

@@ -40,7 +40,7 @@ from ..messenger.constants import (
     REWARD_WIN,
 )
 from .expert import expert_actions, expert_choices
-from .understood import read_back
+from .understood import SAID_OF, read_back
 
 ROLES = ("enemy", "message", "goal")  # the order of role_ids and of an assignment
 CONTACT_NOISE = 0.15  # how often an imagined contact is taken to show the wrong outcome
@@ -167,6 +167,10 @@ class RoleBelief:
     assignments: list[tuple[int, int, int]]  # each: the ids of (enemy, message, goal)
     log_p: np.ndarray  # [6] unnormalised log posterior
     movements: dict[int, str] = field(default_factory=dict)  # id -> how the probes saw it move
+    # From the manual's reading (`from_reading`): what the reading would ask a person, and the facts
+    # the person stated, as the world-model server read them.
+    questions: list[dict] = field(default_factory=list)
+    facts: list[dict] = field(default_factory=list)
 
     @classmethod
     def uniform(cls, ids) -> RoleBelief:
@@ -188,6 +192,18 @@ class RoleBelief:
                 belief.log_p[h] += np.log(1 - CONTACT_NOISE if c.outcome == expected else CONTACT_NOISE / 3)
         belief.log_p = np.log(TRUST * belief.p + (1 - TRUST) / len(belief.assignments))
         return belief
+
+    @classmethod
+    def from_reading(cls, read: dict) -> RoleBelief:
+        """The belief the manual's reading states (an imagine service's `read` answer,
+        world/manual_reading.py): its probabilities as they are, calibrated, with no `TRUST`
+        spread, so that what a person is told and what the agent acts on are one reading."""
+        ids = tuple(sorted(e["id"] for e in read["reading"]))
+        assignments = [tuple(p) for p in itertools.permutations(ids)]
+        given = {tuple(a): p for a, p in zip(read["assignments"], read["assignment_p"], strict=True)}
+        log_p = np.log(np.maximum([given.get(a, 0.0) for a in assignments], 1e-12))
+        movements = {e["id"]: SAID_OF[e["movement"]] for e in read["reading"]}
+        return cls(ids, assignments, log_p, movements, list(read.get("questions", [])), list(read.get("facts", [])))
 
     @property
     def p(self) -> np.ndarray:
@@ -273,8 +289,13 @@ def _expected(c: Contact, message: int, goal: int) -> str:
 
 
 def believe(imaginer, starts: np.ndarray, samples: int = 8, seed: int = 0) -> RoleBelief:
-    """What the world model behind `imaginer` believes of the roles on these boards [k, 4, 3]."""
+    """What the agent believes of the roles on these boards [k, 4, 3] before it acts: the manual's
+    reading where the world model behind `imaginer` reads one (the same every time, no seed);
+    else what the world model imagines in probes."""
     starts = np.asarray(starts).reshape(-1, 4, 3)
+    read = getattr(imaginer, "read", None)
+    if read is not None and (reading := read(starts[0])) is not None:
+        return RoleBelief.from_reading(reading)
     im = imagine_probes(imaginer, starts, samples, seed=seed)
     belief = RoleBelief.from_contacts(starts[0, :3, 0], contacts(im.observations, im.rewards, im.lengths))
     belief.movements = {e["id"]: e["movement"] for e in read_back(im.observations, im.rewards, im.lengths)}

@@ -457,37 +457,33 @@ class HedgedReading:
         # beside the checkpoint; None: imagination reads the words' readings by their priors.
         self.reading_calibration = None
 
-    def read_manual(self, descriptions, encoder, parse=None, facts=()) -> ManualBatch:
+    def read_manual(self, descriptions, encoder, parse=None) -> ManualBatch:
         """The manual of three descriptions as this model reads it; with a reading calibration,
-        also each description's evidence for the manual's reading and the `facts` a person stated
-        (`manual_reading`)."""
+        also each description's evidence for the manual's reading (`manual_reading`)."""
         batch = WorldModel.read_manual(self, descriptions, encoder)
         batch.routed = torch.tensor([[words_code(d, encoder) for d in descriptions]])
         if self.reading_calibration is not None:
             from .manual_reading import evidence_for
 
             batch.evidence = evidence_for(self, encoder, list(descriptions), self.reading_calibration.heads)
-            batch.facts = tuple(facts)
         return batch
 
     def on_board(self, manual: ManualBatch, board: torch.Tensor) -> ManualBatch:
-        """The manual read on the board: with evidence (`read_manual`), its reading
-        (`manual_reading.read_manual`), which imagination then follows (`condition_on`); else,
-        with `ground` on, its words grounded on the board (`ground_words`; one board row per
-        manual, or one for all)."""
+        """The manual read on the board: with `ground` on, its words grounded on the board
+        (`ground_words`; one board row per manual, or one for all); with evidence (`read_manual`),
+        also its reading (`manual_reading.read_manual`), which imagination then follows
+        (`condition_on`)."""
+        board = torch.as_tensor(board).long()
+        if self.ground and manual.routed is not None:
+            rows = board if len(board) == len(manual.routed) else board[:1].expand(len(manual.routed), -1)
+            routed, among = ground_words(manual.routed, rows)
+            manual = replace(manual, routed=routed, among=among)
         if manual.evidence is not None and self.reading_calibration is not None:
             from .manual_reading import read_manual
 
-            ids = [int(i) for i in torch.as_tensor(board).reshape(-1, torch.as_tensor(board).shape[-1])[0] if i > 0]
-            reading = read_manual(manual.evidence, ids, self.reading_calibration, manual.facts)
-            return replace(manual, reading=reading)
-        if not self.ground or manual.routed is None:
-            return manual
-        board = torch.as_tensor(board).long()
-        if len(board) != len(manual.routed):
-            board = board[:1].expand(len(manual.routed), -1)
-        routed, among = ground_words(manual.routed, board)
-        return replace(manual, routed=routed, among=among)
+            ids = [int(i) for i in board.reshape(-1, board.shape[-1])[0] if i > 0]
+            manual = replace(manual, reading=read_manual(manual.evidence, ids, self.reading_calibration, manual.facts))
+        return manual
 
     def _read(self, manual: ManualBatch) -> tuple[torch.Tensor, torch.Tensor]:
         raise NotImplementedError

@@ -366,6 +366,17 @@ class ManualReading:
             })  # fmt: skip
         return out
 
+    def answer(self) -> dict:
+        """The reading as the imagine service's op `read` answers it (msgs_json/imagine_response)."""
+        assignments, p = self.assignments()
+        return {
+            "reading": self.to_json(),
+            "assignments": [list(a) for a in assignments],
+            "assignment_p": [round(float(x), 6) for x in p],
+            "questions": [q.to_json() for q in self.questions()],
+            "facts": [dict(f) for f in self.facts],
+        }
+
     def questions(self, below: float = ASK_BELOW, limit: int = MAX_QUESTIONS) -> list[Question]:
         """The facts the reading is least sure of, below `below`, least sure first (roles before
         movements on ties: a wrong role kills the agent, a wrong movement costs a detour)."""

@@ -24,7 +24,7 @@ import os
 import threading
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -41,6 +41,7 @@ from .frozen_text import FrozenTextEncoder
 from .hedged_reading import code_fields
 from .imagine import Imagination, StepwiseImagination, board_of, condition_rows
 from .manual import ManualBatch
+from .manual_reading import check_fact
 from .reading import grounding, read_identities, ungrounded_note, unsure_fields, unsure_note
 from .shipped import SYSTEM_WORLD_MODEL, shipped_checkpoint
 
@@ -68,12 +69,14 @@ class ManualState:
     version: int = 0
     source: str = ""
     game: str = ""  # split:index of the last environment manual
+    facts: list[dict] = field(default_factory=list)  # what the person stated (answers), held for sure
     batch: ManualBatch | None = None
     cond: Conditioning | None = None  # the model's conditioning on `batch` as read on a board
     cond_words: tuple = ()  # the words `cond` read (a grounding model's depend on the board)
 
     def to_json(self) -> dict:
-        return {"manual": self.manual, "version": self.version, "source": self.source, "game": self.game}
+        return {"manual": self.manual, "version": self.version, "source": self.source, "game": self.game,
+                "facts": self.facts}  # fmt: skip
 
 
 class WorldModelServer:
@@ -132,17 +135,26 @@ class WorldModelServer:
     _batch = property(lambda self: self.state().batch)
 
     # ------------------------------------------------------------------ manual
-    def set_manual(self, descriptions: list[str], source: str = "", agent: str | None = None) -> tuple[int, bool]:
-        """Replace an agent's manual. Returns (version, changed): the same text again is not a new
-        version (a latched manual is delivered again to a restarted node). A rejected manual
-        changes nothing."""
+    def set_manual(
+        self, descriptions: list[str], source: str = "", agent: str | None = None, facts: Sequence[dict] = ()
+    ) -> tuple[int, bool]:
+        """Replace an agent's manual, with the facts a person stated of its board's entities
+        (answers to the reading's questions). Returns (version, changed): the same text and facts
+        again is not a new version (a latched manual is delivered again to a restarted node). A
+        rejected manual changes nothing."""
         with self.lock:
             state = self.state(agent)
-            if state.manual == list(descriptions) and state.batch is not None:
+            board = self.board(agent)
+            stated = [check_fact(f, board) for f in facts]
+            if state.manual == list(descriptions) and state.facts == stated and state.batch is not None:
                 return state.version, False
-            batch = self.model.read_manual(descriptions, self.encoder)
+            if state.manual == list(descriptions) and state.batch is not None:
+                batch = state.batch  # only the facts changed: the words are read already
+            else:
+                batch = self.model.read_manual(descriptions, self.encoder)
+            batch = replace(batch, facts=tuple(stated))
             self._assign(state, list(descriptions), batch, *self._read_back(descriptions, batch))
-            state.source = source
+            state.source, state.facts = source, stated
             self._save()
             return state.version, True
 
@@ -153,11 +165,11 @@ class WorldModelServer:
             reading = self._read_back(descriptions, batch)
             out = {}
             for name, state in self.agents.items():
-                if state.manual == list(descriptions) and state.batch is not None:
+                if state.manual == list(descriptions) and not state.facts and state.batch is not None:
                     out[name] = (state.version, False)
                     continue
                 self._assign(state, list(descriptions), batch, *reading)
-                state.source = source
+                state.source, state.facts = source, []
                 out[name] = (state.version, True)
             self._save()
             return out
@@ -247,13 +259,37 @@ class WorldModelServer:
             out["agent"] = agent
         if state.manual:
             out["manual"] = state.manual
+        if state.facts:
+            out["facts"] = state.facts
         board = self.board(agent)
         if board is not None:
             out["board"] = board
             if state.manual and state.reading is not None and any(r is not None for r in state.reading):
                 grounded, unsure = self._on_board(state, board)
                 out["reading"] = grounding(state.reading, board, unsure, grounded)
+            read = self._reading(state, board)
+            if read is not None:
+                out["belief"] = read.to_json()
+                out["questions"] = [q.to_json() for q in read.questions()]
         return out
+
+    def _reading(self, state: ManualState, board: Sequence[str]):
+        """The manual's reading on a board (world/manual_reading.py), or None: no manual yet, or a
+        model with no reading calibration."""
+        if state.batch is None:
+            return None
+        ids = torch.tensor([[IDENTITIES[b] for b in board]])
+        return self.model.on_board(state.batch, ids).reading
+
+    def _read(self, request: dict) -> dict:
+        """Op `read`: the manual's reading on the board of the request's start observation."""
+        batch, manual, version, _ = self._manual_for(request)
+        start = self._starts(request)[:1]
+        read = self.model.on_board(batch, board_of(start)).reading
+        if read is None:
+            return {"ok": True, "op": "read", "model": self.model_name, "manual_version": version, "manual": manual}
+        return {"ok": True, "op": "read", "model": self.model_name, "manual_version": version, "manual": manual,
+                **read.answer()}  # fmt: skip
 
     def _save(self) -> None:
         if self.state_path is None:
@@ -276,7 +312,9 @@ class WorldModelServer:
                     continue
                 state = self.agents[name]
                 if entry.get("manual"):
-                    state.batch = self.model.read_manual(entry["manual"], self.encoder)
+                    state.facts = [check_fact(f) for f in entry.get("facts", [])]
+                    batch = self.model.read_manual(entry["manual"], self.encoder)
+                    state.batch = replace(batch, facts=tuple(state.facts))
                     state.manual = list(entry["manual"])
                     state.reading, state.unsure = self._read_back(state.manual, state.batch)
                 state.version = int(entry.get("version", 0))
@@ -292,7 +330,8 @@ class WorldModelServer:
         op = request.get("op", "imagine")
         began = time.perf_counter()
         with self.lock:
-            out = {"open": self._open, "step": self._step, "close": self._close}.get(op, self.imagine)(request)
+            serve = {"open": self._open, "step": self._step, "close": self._close, "read": self._read}
+            out = serve.get(op, self.imagine)(request)
         out["seconds"] = round(time.perf_counter() - began, 4)
         return out
 
@@ -364,6 +403,8 @@ class WorldModelServer:
         words = () if read is batch else tuple(read.routed.flatten().tolist())
         if read.among is not None:  # the entities the board leaves each description are words too
             words += tuple(read.among.flatten().tolist())
+        if read.reading is not None:  # a reading is of one board, with the facts stated
+            words += (*board.flatten().tolist(), repr(read.facts))
         if state.cond is None or state.cond_words != words:
             state.cond, state.cond_words = self.model.condition_on(read), words
         return state.cond
