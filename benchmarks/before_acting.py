@@ -65,8 +65,13 @@ def ece(conf: list[float], right: list[bool], bins: int = BINS) -> float:
 def reliability(conf: list[float], right: list[bool], bins: int = BINS) -> list[dict]:
     conf_a, right_a = np.asarray(conf), np.asarray(right, dtype=float)
     edges = np.minimum((conf_a * bins).astype(int), bins - 1)
-    return [{"bin": b / bins, "n": int((edges == b).sum()), "confidence": round(float(conf_a[edges == b].mean()), 4),
-             "accuracy": round(float(right_a[edges == b].mean()), 4)} for b in range(bins) if (edges == b).any()]  # fmt: skip
+    out = []
+    for b in range(bins):
+        at = edges == b
+        if at.any():
+            out.append({"bin": b / bins, "n": int(at.sum()), "confidence": round(float(conf_a[at].mean()), 4),
+                        "accuracy": round(float(right_a[at].mean()), 4)})  # fmt: skip
+    return out
 
 
 class Reader:
@@ -111,7 +116,8 @@ def score(reader: Reader, texts: list[str], triples: list[tuple], styles: list[s
         e = IDENTITIES[ident]
         about = reading.about(e)
         entities.append({
-            "identity": ident, "style": styles[j], "role_p": round(best[e]["p"], 4), "role_right": best[e]["role"] == role,
+            "identity": ident, "style": styles[j],
+            "role_p": round(best[e]["p"], 4), "role_right": best[e]["role"] == role,
             "movement_p": round(best[e]["movement_p"], 4), "movement_right": best[e]["movement"] == mv,
             "placed_right": int(np.argmax(about)) == j, "max_role_p": round(float(reading.role_p(e).max()), 4),
         })  # fmt: skip
@@ -258,8 +264,10 @@ def plot(summary: dict, path: Path) -> None:
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--models", nargs="+", default=["emma-lwm-hedged", "words"],
-                    help="readers: shipped checkpoints (or folders), and `words` for the keyword parser alone")  # fmt: skip
+    ap.add_argument(
+        "--models", nargs="+", default=["emma-lwm-hedged", "words"],
+        help="readers: shipped checkpoints (or folders), and `words` for the keyword parser alone",
+    )  # fmt: skip
     ap.add_argument("--sources", nargs="+", default=list(SOURCES), choices=SOURCES)
     ap.add_argument(
         "--texts", type=Path, nargs="*", default=[], help="the dataset's description files (source dataset)"
@@ -287,7 +295,8 @@ def main() -> int:
             print(table({name: {source: summarise(records)[name][source]}}).splitlines()[-1], flush=True)
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout
     summary = {
-        "settings": {"split": SPLIT, "games": len(games), "seed": args.seed, "readers": args.models, "sources": sources},
+        "settings": {"split": SPLIT, "games": len(games), "seed": args.seed, "readers": args.models,
+                     "sources": sources},
         "results": summarise(records),
         "run": {"command": " ".join(["benchmarks/before_acting.py", *sys.argv[1:]]), "commit": commit.strip(),
                 "seconds": round(time.perf_counter() - began, 1)},

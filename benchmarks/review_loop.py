@@ -40,6 +40,7 @@ from lwm_models.stats import mean_interval  # noqa: E402
 from lwm_models.world.shipped import SHIPPED, SYSTEM_WORLD_MODEL  # noqa: E402
 
 TEXTS = ROOT.parent / "shared" / "data" / "messenger-texts"
+ANSWERED = re.compile(r"scripted human: answered ")
 SPOKEN = re.compile(r"manual feedback on plan \d+ at ([\d.]+)")
 STATS = re.compile(r"imagine calls (\d+), round trip ([\d.]+) s, world-model server ([\d.]+) s")
 
@@ -51,6 +52,7 @@ def run_game(index: int, seed: int, args, work: Path) -> dict:
     cmd += ["--index", str(index), "--seed", str(seed), "--log-dir", str(logs), "--ledger", str(ledger)]
     cmd += ["--teach", args.teach] + (["--texts", *args.texts] if args.texts else [])
     cmd += ["--language"] if args.language else []
+    cmd += ["--answer-questions"] if args.answer_questions else []
     cmd += ["--approve-return", str(args.approve_return)]
     cmd += ["--constrained"] if args.constrained else ["--no-constrained"]
     cmd += ["--constrained-learning"] if args.constrained_learning else []
@@ -99,6 +101,9 @@ def run_game(index: int, seed: int, args, work: Path) -> dict:
     # The reviewer's effort: every state a label request asked about, the labels given, the
     # corrected steps and the manuals written (the scripted reviewer answers all it is asked).
     feedback = [r["payload"] for r in records if r["kind"] == "feedback"]
+    # What the first plan rested on: the roles the agent acted on, against the game's.
+    first = plans[min(plans)] if plans else {}
+    truth = {e.identity: e.role for e in load_split(args.split)[index].entities}
     return {
         "game": index,
         "seed": seed,
@@ -112,6 +117,10 @@ def run_game(index: int, seed: int, args, work: Path) -> dict:
         "manuals_written": sum(
             1 for r in records if r["kind"] == "manual" and r["payload"].get("source") not in ("", "env")
         ),
+        "first_roles_right": bool(first.get("roles"))
+        and all(e["role"] == truth[e["identity"]] for e in first["roles"]),
+        "questions_asked": len(first.get("questions", [])),
+        "questions_answered": len(ANSWERED.findall((logs / "human.log").read_text())),
         "approved_plan_died": any(any(x < 0 for x in p["rewards"]) for p in approved),
         "revise": revise,
         "imagine_calls": int(m.group(1)) if m else None,
@@ -155,7 +164,17 @@ def main() -> int:
         help="the planner's learning rounds are imagined under the game's rules too",
     )
     default_texts = [str(TEXTS / "text_train.json"), str(TEXTS / "text_val.json")] if TEXTS.is_dir() else None
-    p.add_argument("--texts", nargs="*", default=default_texts, help="description files of the game's manuals")
+    p.add_argument(
+        "--texts",
+        nargs="*",
+        default=default_texts,
+        help="description files of the game's manuals, or stress:fresh (the fresh held-out part, people's own words)",
+    )
+    p.add_argument(
+        "--answer-questions",
+        action="store_true",
+        help="the scripted reviewer answers the question a plan asks about the manual's reading first (the truth)",
+    )
     p.add_argument(
         "--records",
         type=Path,
@@ -195,6 +214,10 @@ def main() -> int:
     print(f"\nreal return over {len(r)} games: {r.mean():+.2f} (95% t interval {lo:+.2f}..{hi:+.2f})")
     print("outcomes:", {o: sum(x["outcome"] == o for x in rows) for o in ("won", "died", "time_limit", "aborted")})
     print(f"approved plans whose shown trajectory died: {sum(x['approved_plan_died'] for x in rows)}")
+    print(
+        f"first plan's roles right: {sum(x['first_roles_right'] for x in rows)} of {len(rows)}; questions asked "
+        f"{sum(x['questions_asked'] for x in rows)}, answered {sum(x['questions_answered'] for x in rows)}"
+    )
     print("per game: real return, then the reviewer's effort (labels asked / given, corrected steps, manuals)")
     for x in rows:
         print(

@@ -84,7 +84,8 @@ def test_an_answer_is_held_for_sure_and_settles_what_follows_from_it(served):
 
 
 def test_questions_name_the_entity_and_offer_every_choice(served):
-    q = reading(served, ["the plane is somewhere on the board", "the mage is here too", "there is also a ship"]).questions()[0]
+    vague = ["the plane is somewhere on the board", "the mage is here too", "there is also a ship"]
+    q = reading(served, vague).questions()[0]
     assert q.entity in ("airplane", "mage", "ship")
     assert q.text.startswith(f"Is the {q.entity} ") or q.text.startswith(f"Does the {q.entity} ")
     assert sorted(c["value"] for c in q.to_json()["choices"]) == sorted(q.choices) and len(q.choices) == 3
@@ -113,4 +114,5 @@ def test_imagination_follows_the_reading(served):
     configs = manual.reading.configurations()
     assert len(cond.reading_log_prior) == len(configs)
     assert np.allclose(cond.reading_log_prior.exp().numpy(), [p for _, p in configs], atol=1e-5)
-    assert configs[0][0] == (("airplane", "chaser", "enemy"), ("mage", "immovable", "message"), ("ship", "fleeing", "goal"))
+    believed = (("airplane", "chaser", "enemy"), ("mage", "immovable", "message"), ("ship", "fleeing", "goal"))
+    assert configs[0][0] == believed

@@ -128,7 +128,10 @@ class PlanReviewAgent:
     # The person's corrections in this review: state (history bytes) -> (history, action).
     pinned: dict = field(default_factory=dict)
     belief: RoleBelief | None = None  # what the world model made of the roles (self-teaching)
-    taught_manual: tuple = ()  # the manual the agent last taught itself from
+    taught_manual: tuple = ()  # the manual (and facts) the agent last taught itself from
+    # What the person stated of the board's entities (answers to the reading's questions), as
+    # (entity, field, value): part of the manual the agent reads.
+    facts: tuple = ()
 
     def __post_init__(self) -> None:
         self._policy_manual = self._encode(self.manual)
@@ -188,10 +191,17 @@ class PlanReviewAgent:
         return float((im.rewards < 0).any(1).mean())
 
     # ---------------------------------------------------------------- feedback
-    def set_manual(self, descriptions: Sequence[str]) -> None:
-        """Language feedback: the policy reads the new manual."""
+    def set_manual(self, descriptions: Sequence[str], facts: Sequence[dict] = ()) -> None:
+        """Language feedback: the policy reads the new manual; `facts`: what the person stated of
+        the board's entities with it."""
         self._policy_manual = self._encode(descriptions)  # raises before anything changes
         self.manual = list(descriptions)
+        self.facts = tuple(sorted((f["entity"], f["field"], f["value"]) for f in facts))
+
+    @property
+    def unread(self) -> bool:
+        """The manual (or the facts stated with it) is one the agent has not taught itself from."""
+        return self.taught_manual != (tuple(self.manual), self.facts)
 
     def check_corrections(self, plan: Plan, corrections: Sequence[Correction]) -> None:
         steps = len(plan.actions)
@@ -309,7 +319,7 @@ class PlanReviewAgent:
             should_stop, on_round,
         )  # fmt: skip
         self.belief = result.belief
-        self.taught_manual = tuple(self.manual)
+        self.taught_manual = (tuple(self.manual), self.facts)
         if result.taught is not None:
             self.labelled.add(*result.taught)
         self.hold_corrections()

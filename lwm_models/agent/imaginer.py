@@ -171,7 +171,6 @@ class LocalImaginer:
             constrained=self.constrained if constrained is None else constrained,
         )
 
-
     def read(self, start: np.ndarray) -> dict | None:
         """The manual's reading on the board of `start` [4, 3], as ServiceImaginer.read answers it."""
         from ..world.imagine import board_of

@@ -169,6 +169,7 @@ class ReviewLoop:
         self.manual_version = 0
         self.manual_game = ""
         self.manual_source = ""
+        self.manual_facts: list[dict] = []  # what the person stated with the manual (answers)
         self.pending_state: dict | None = None
         self.review: Review | None = None
         self.early: list[tuple[Callable[[dict], None], dict]] = []  # arrived before any review opened
@@ -187,11 +188,12 @@ class ReviewLoop:
             if status["manual_version"] == self.manual_version and status["manual"] == self.manual:
                 return
             self.manual, self.manual_version = list(status["manual"]), int(status["manual_version"])
+            self.manual_facts = list(status.get("facts", []))
             self.manual_game = status.get("game", "")
             self.manual_source = status.get("manual_source", "")
             r = self.review
             if r is not None and r.phase != "done" and self._manual_fits(r.game):
-                r.agent.set_manual(self.manual)
+                r.agent.set_manual(self.manual, self.manual_facts)
                 self._record_manual(r)
                 if r.phase == "reviewing":
                     r.phase = "planning"
@@ -331,9 +333,10 @@ class ReviewLoop:
                 self.config.max_steps,
                 futures=self.config.futures,
             )
+            agent.set_manual(self.manual, self.manual_facts)
             self.agents[game] = agent
         else:
-            agent.set_manual(self.manual)
+            agent.set_manual(self.manual, self.manual_facts)
         r = Review(review_id, seed, game, np.asarray(s["observation"], dtype=np.uint8), agent)
         self.review = r
         history = self.ledger.history(review_id)
@@ -353,7 +356,12 @@ class ReviewLoop:
         self.ledger.record(
             r.review_id,
             "manual",
-            {"manual_version": self.manual_version, "descriptions": self.manual, "source": self.manual_source},
+            {
+                "manual_version": self.manual_version,
+                "descriptions": self.manual,
+                "source": self.manual_source,
+                **({"facts": self.manual_facts} if self.manual_facts else {}),
+            },  # fmt: skip
         )
 
     # ================================================================== the worker
@@ -410,8 +418,7 @@ class ReviewLoop:
 
     def _plan(self, r: Review, reason: str) -> None:
         start, start_step, before = self._start_of(r)
-        unread = r.agent.taught_manual != tuple(r.agent.manual)  # a manual it has not taught itself from
-        if reason in ("start", "manual") and self.config.teaching.rounds and unread:
+        if reason in ("start", "manual") and self.config.teaching.rounds and r.agent.unread:
             self._teach_self(r, fresh=reason == "manual")
         for _ in range(3):  # a manual that changed while imagining makes the plan stale: imagine again
             with self.lock:
@@ -438,6 +445,8 @@ class ReviewLoop:
         belief = r.agent.belief
         return {
             **({"roles": belief.describe()} if belief is not None else {}),
+            **({"questions": belief.questions} if belief is not None and belief.questions else {}),
+            **({"facts": belief.facts} if belief is not None and belief.facts else {}),
             "review_id": r.review_id,
             "manual": list(r.agent.manual),
             "reason": reason,

@@ -65,6 +65,8 @@ def plan_text(plan: dict, frames: str = "ends") -> str:
         f"its {f['k']} sampled futures: {f['death_share']:.0%} die, {f['win_share']:.0%} win, "
         f"mean return {f['return_mean']:+.2f}",
     ]
+    if plan.get("questions"):
+        lines.append(question_text(plan))
     if frames == "none":
         return "\n".join(lines)
     first = np.asarray(plan["observations"][0], dtype=np.uint8)
@@ -83,6 +85,15 @@ def plan_text(plan: dict, frames: str = "ends") -> str:
         lines.append(render_ascii(np.asarray(plan["observations"][t], dtype=np.uint8)))
     lines.append("steps: " + ", ".join(steps))
     return "\n".join(lines)
+
+
+def question_text(plan: dict) -> str:
+    """The plan's first question about the manual, with its answers numbered for `q N`."""
+    q = plan["questions"][0]
+    offered = ", ".join(f"q {k} {c['words']}" for k, c in enumerate(q["choices"], 1))
+    more = len(plan["questions"]) - 1
+    return (f"the agent is not sure ({q['p']:.0%}): {q['text']} answer {offered}"
+            + (f" ({more} more question(s) after this)" if more else ""))  # fmt: skip
 
 
 def state_text(request: dict, k: int, before: Sequence | None = None) -> str:
@@ -105,4 +116,4 @@ def state_text(request: dict, k: int, before: Sequence | None = None) -> str:
     return "\n".join(parts)
 
 
-__all__ = ["outcome", "plan_text", "state_text", "step_event"]
+__all__ = ["outcome", "plan_text", "question_text", "state_text", "step_event"]

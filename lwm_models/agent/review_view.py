@@ -103,4 +103,29 @@ def history_view(records: Sequence[dict]) -> list[dict]:
     return out
 
 
-__all__ = ["frames", "history_view", "label_request_view", "legend", "plan_view", "progress_view", "report_view"]
+__all__ = [
+    "answered_manual",
+    "frames",
+    "history_view",
+    "label_request_view",
+    "legend",
+    "plan_view",
+    "progress_view",
+    "report_view",
+]
+
+
+def answered_manual(plan: dict | None, words: list[str]) -> dict:
+    """The manual payload that answers a plan's first question with choice `words[0]` (1, 2 or 3):
+    the plan's manual, with the facts stated so far and this one. ValueError in plain words when
+    there is nothing to answer or the choice is not one of the question's."""
+    questions = (plan or {}).get("questions") or []
+    if not questions:
+        raise ValueError("the plan asks no question about the manual")
+    q = questions[0]
+    n = len(q["choices"])
+    if len(words) != 1 or not words[0].isdigit() or not 1 <= int(words[0]) <= n:
+        offered = ", ".join(f"{k} {c['words']}" for k, c in enumerate(q["choices"], 1))
+        raise ValueError(f"answer with one choice number: q 1 to q {n} ({offered})")
+    fact = {"entity": q["entity"], "field": q["field"], "value": q["choices"][int(words[0]) - 1]["value"]}
+    return {"descriptions": list(plan["manual"]), "facts": [*plan.get("facts", []), fact], "source": "human"}

@@ -86,6 +86,18 @@ class ScriptedReviewer:
         self._spoken.add(plan["review_id"])
         return True
 
+    def answer(self, plan: dict) -> dict | None:
+        """The true answer to the first question a plan asks about the manual's reading, as a fact
+        (a manual's `facts` item); None when it asks none or one already answered."""
+        if not plan.get("questions"):
+            return None
+        q = plan["questions"][0]
+        stated = {(f["entity"], f["field"]) for f in plan.get("facts", [])}
+        if (q["entity"], q["field"]) in stated:
+            return None
+        truth = next(t for t in self.game.triples if t[0] == q["entity"])
+        return {"entity": q["entity"], "field": q["field"], "value": truth[1] if q["field"] == "movement" else truth[2]}
+
     def reworded_manual(self, pools, split: str, current: Sequence[str], seed: int = 0) -> list[str]:
         """The game's true manual (its three triples, in a random order) with descriptions drawn
         from `pools` (lwm_models.text.DescriptionPools), other words than `current` where the

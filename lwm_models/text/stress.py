@@ -19,6 +19,7 @@ which would break the pools' train/test disjointness if anyone trained on them.
 from __future__ import annotations
 
 import json
+from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
@@ -104,6 +105,32 @@ def stress_pools(style: str, part: str = "heldout", path: str | Path = STRESS_FI
         for split in receiving_splits(triple):
             pools[split][triple] = tuple(by_triple[triple])
     return DescriptionPools(pools, f"stress:{part}:{style}")
+
+
+FRESH_SOURCE = "stress:fresh"
+
+
+def fresh_pools(path: str | Path = FRESH_FILE) -> DescriptionPools:
+    """Pools of the fresh held-out part: every split that can contain a triple gets its three
+    descriptions (evaluation only, as `stress_pools`)."""
+    by_triple: dict[Triple, list[str]] = {}
+    for e in load_fresh(path=path):
+        by_triple.setdefault(e.triple, []).append(e.text)
+    pools: dict[str, dict[Triple, tuple[str, ...]]] = {split: {} for split in SPLITS}
+    for triple in ALL_TRIPLES:
+        for split in receiving_splits(triple):
+            pools[split][triple] = tuple(by_triple[triple])
+    return DescriptionPools(pools, FRESH_SOURCE)
+
+
+def description_pools(sources: Sequence[str]) -> DescriptionPools:
+    """The pools a game draws its manuals from: human-written description files, or
+    `FRESH_SOURCE` (the fresh held-out part, in a person's own words)."""
+    if list(sources) == [FRESH_SOURCE]:
+        return fresh_pools()
+    if FRESH_SOURCE in sources:
+        raise LwmError(f"{FRESH_SOURCE} is a source of its own: give it alone, not beside files")
+    return DescriptionPools.from_files(sources)
 
 
 def manual_sources(path: str | Path = STRESS_FILE) -> tuple[str, ...]:

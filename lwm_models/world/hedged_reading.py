@@ -548,13 +548,15 @@ class HedgedReading:
         index = {t: k for k, t in enumerate(ALL_TRIPLES)}
         ks, vs, priors = [], [], []
         for triples, p in manual.reading.configurations():
+            own = [bool(nearest[0, j] == index[t]) for j, t in enumerate(triples)]
             picks = [index[t] for t in triples]
-            ks.append(torch.stack([keys[0, j] if nearest[0, j] == t else self.proto_keys[t] for j, t in enumerate(picks)]))
-            vs.append(torch.stack([values[0, j] if nearest[0, j] == t else self.proto_values[t] for j, t in enumerate(picks)]))
+            ks.append(torch.stack([keys[0, j] if own[j] else self.proto_keys[t] for j, t in enumerate(picks)]))
+            vs.append(torch.stack([values[0, j] if own[j] else self.proto_values[t] for j, t in enumerate(picks)]))
             priors.append(p)
         stands = torch.zeros(1, 3, dtype=torch.bool)
         log_prior = torch.log(torch.tensor(priors, dtype=torch.float64)).float()
-        return Readings(torch.stack(ks), torch.stack(vs), torch.zeros(len(ks), dtype=torch.long), log_prior, stands, stands)
+        owner = torch.zeros(len(ks), dtype=torch.long)
+        return Readings(torch.stack(ks), torch.stack(vs), owner, log_prior, stands, stands)
 
     def predictions(
         self, tokens: torch.Tensor, lengths: torch.Tensor, manual: ManualBatch

@@ -401,7 +401,8 @@ class ManualReading:
             for moves in itertools.product(range(3), repeat=3):
                 p = self.p_map[m, r] * np.prod([self.movement[m, j, moves[j]] for j in range(3)])
                 if p > 0:
-                    triples = tuple((ID_TO_IDENTITY[self._entity_of(m, j)], MOVEMENTS[moves[j]], ROLES[self.roles[r][j]])
+                    entity = [ID_TO_IDENTITY[self._entity_of(m, j)] for j in range(3)]
+                    triples = tuple((entity[j], MOVEMENTS[moves[j]], ROLES[self.roles[r][j]])
                                     for j in range(3))  # fmt: skip
                     found.append((round(float(p), 12), triples))
         found.sort(key=lambda c: (-c[0], c[1]))

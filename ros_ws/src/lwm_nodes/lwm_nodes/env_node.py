@@ -20,12 +20,13 @@ class EnvNode(JsonNode):
         index = self.declare_parameter("index", 0).value
         seed = self.declare_parameter("seed", 0).value
         max_steps = self.declare_parameter("max_steps", 32).value
-        texts = self.declare_parameter("texts", "").value  # comma-separated description files
+        # Comma-separated description files, or stress:fresh (the fresh held-out part's own words).
+        texts = self.declare_parameter("texts", "").value
         pools = None
         if texts:
-            from lwm_models.text import DescriptionPools
+            from lwm_models.text.stress import description_pools
 
-            pools = DescriptionPools.from_files(texts.split(","))
+            pools = description_pools(texts.split(","))
         self.session = GameSession(split, index, pools, max_steps)
         self.publish_state = self.json_publisher("env/state", "state", LATCHED)
         self.publish_manual = self.json_publisher("env/manual", "manual", LATCHED)

@@ -366,6 +366,8 @@ def given_parameters(
         )
         if args.language:
             given["human"].update(chosen(language=True, texts=texts))
+        if args.answer_questions:
+            given["human"].update(chosen(questions=True))
     elif human == "page":
         given["human"].update(chosen(page_port=args.page, reviewer=person or None))
     elif human == "interactive":
@@ -472,7 +474,13 @@ def main(argv: list[str] | None = None) -> int:
         "--texts",
         nargs="+",
         default=None,
-        help="human-written description files the game draws its manuals from (default: the project's generator)",
+        help="human-written description files the game draws its manuals from, or stress:fresh (the project's "
+        "fresh held-out descriptions, in people's own words; default: the project's generator)",
+    )
+    parser.add_argument(
+        "--answer-questions",
+        action="store_true",
+        help="scripted: answer the question a plan asks about the manual's reading (the true fact) first",
     )
     parser.add_argument(
         "--episodes", type=int, default=None, help="scripted: episodes (seeds SEED, SEED+1, ...) to review (default 1)"

@@ -6,7 +6,7 @@ and after `episodes` reports it stops the node, which ends the launcher's run wi
 With language:=true its first answer in each review is language feedback: the true manual in other
 words, published on /feedback/manual (texts:= the description files to draw them from; default:
 the project's generator). Parameters: teach, approve_return, max_death_share, max_rounds (the
-reviewer's, lwm_models/agent/reviewer.py), episodes, language, texts.
+reviewer's, lwm_models/agent/reviewer.py), episodes, language, texts, questions.
 """
 
 from __future__ import annotations
@@ -35,6 +35,7 @@ class SimulatedReviewer(Reviewer):
         self.episodes = int(p("episodes", 1).value)  # reviews before it stops
         self.language = bool(p("language", False).value)  # a reworded manual first
         self.texts = p("texts", "").value  # comma-separated description files for the rewording
+        self.questions = bool(p("questions", False).value)  # answers the reading's questions first
         self.pools = None
         self.expert: ScriptedReviewer | None = None
         self.reports: set[str] = set()
@@ -56,6 +57,12 @@ class SimulatedReviewer(Reviewer):
         if self.expert.wants_to_speak(plan):
             self.speak(plan)
             return
+        fact = self.expert.answer(plan) if self.questions else None
+        if fact is not None:  # the answer is part of the manual: the planner re-plans under it
+            facts = [*plan.get("facts", []), fact]
+            self.node.publish_manual({"descriptions": plan["manual"], "facts": facts, "source": "human"})
+            print(f"scripted human: answered {plan['questions'][0]['text']!r} with {fact['value']}", flush=True)
+            return
         feedback = self.expert.review(plan, self.node.imaginer)
         self.node.publish_feedback(feedback)
         detail = {
@@ -70,10 +77,9 @@ class SimulatedReviewer(Reviewer):
         the one reviewed."""
         if self.pools is None:
             from lwm_models.text import DescriptionPools
+            from lwm_models.text.stress import description_pools
 
-            self.pools = (
-                DescriptionPools.from_files(self.texts.split(",")) if self.texts else DescriptionPools.generated()
-            )
+            self.pools = description_pools(self.texts.split(",")) if self.texts else DescriptionPools.generated()
         seed = Episode.parse(plan["review_id"]).seed
         manual = self.expert.reworded_manual(self.pools, self.node.split, plan["manual"], seed)
         self.node.publish_manual({"descriptions": manual, "source": "human"})

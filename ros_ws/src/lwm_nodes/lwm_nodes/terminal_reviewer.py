@@ -12,6 +12,8 @@ futures are printed, and the person answers on stdin:
                       per request, before the planner stops waiting (the request's timeout)
     x                 abort: execute nothing
     m                 a new manual, three descriptions, one per line (published on /feedback/manual)
+    q N               answer the plan's question about the manual with choice N (1, 2 or 3): the
+                      fact joins the manual, and the agent re-plans under it
     n [SEED]          the next episode of this game (the next seed, or SEED): a fresh review
     restart           this episode again from its start (same board and seed), as a fresh review
     f                 every frame of the plan (a plan shows its start and last board, a line per step)
@@ -29,7 +31,7 @@ import time
 from typing import TYPE_CHECKING
 
 from lwm_models.agent.review_text import progress_text, state_text
-from lwm_models.agent.review_view import label_request_view
+from lwm_models.agent.review_view import answered_manual, label_request_view
 from lwm_nodes.reviewer import Reviewer, show
 
 if TYPE_CHECKING:
@@ -38,9 +40,11 @@ if TYPE_CHECKING:
 PROMPT = (
     "answer: a approve | r reject | c STEP:ACTION ... correct | i [ROUNDS] teach | x abort | m manual | "
     "n next episode | restart this episode | f every frame | stop (teaching or the agent's play)"
+    " | q N answer the question"
 )
 USAGE = (
-    "unknown command; a | r | c STEP:ACTION ... | i [ROUNDS] | l STATE:ACTION ... | x | stop | m | n [SEED] | restart"
+    "unknown command; a | r | c STEP:ACTION ... | i [ROUNDS] | l STATE:ACTION ... | x | stop | m | q N | n [SEED] | "
+    "restart"
 )
 NODE_WORDS = {"lwm_world_model": "world-model server"}  # how the terminal names who answered
 DECISIONS = {"a": "approve", "r": "reject", "x": "abort", "stop": "stop"}
@@ -106,6 +110,8 @@ class TerminalReviewer(Reviewer):
             print("three descriptions, one per line:", flush=True)
             manual = [sys.stdin.readline().strip() for _ in range(3)]
             node.publish_manual({"descriptions": manual, "source": "human"})
+        elif words[:1] == ["q"]:
+            node.publish_manual(answered_manual(node.plan, words[1:]))
         elif words[:1] == ["s"] and len(words) == 2:
             self.show_state(int(words[1]))
         elif line == "f" and node.plan is not None:
