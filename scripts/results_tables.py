@@ -550,7 +550,97 @@ def read_back_summary(base: str) -> list[str]:
     return lines
 
 
+READERS = (("emma-lwm-hedged", "EMMA-LWM, reader tuned, hedged (the default)"), ("words", "the keyword parser alone"))
+READING_SOURCES = (
+    ("dataset", "the dataset's (human-written)"),
+    ("generated", "the project's generator"),
+    ("fresh", "fresh held-out, people's own words"),
+    ("unusable", "no usable fact (gibberish, other games)"),
+)
+
+
+def before_acting(base: str) -> list[str]:
+    """The manual's reading before any step (benchmarks/before_acting.py), per reader and source."""
+    path = "before-acting/summary.json"
+    summary = _load(path)
+    lines = [
+        "| reader | manuals | roles right | movements right | same reading in every order | calibration error: "
+        "role / movement / assignment | questions a manual | roles right, questions answered | every role < 50% |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for key, name in READERS:
+        for source, label in READING_SOURCES:
+            c = summary["results"].get(key, {}).get(source)
+            if c is None:
+                continue
+            lines.append(
+                f"| {name} | {label} | {c['roles_right']:.0%} | {c['movements_right']:.0%} | {c['stable']:.0%} | "
+                f"{c['ece_role']:.3f} / {c['ece_movement']:.3f} / {c['ece_assignment']:.3f} | {c['questions']:.2f} | "
+                f"{c['roles_right_answered']:.0%} | {c['all_roles_below_half']:.0%} |"
+            )
+    lines.append(
+        f"\n{summary['settings']['games']} NewAll test games drawn at random (seed {summary['settings']['seed']}); "
+        f"roles right per game, movements per entity; expected calibration error over 10 bins; "
+        f"{_link(path, base)}, its [reliability plot]({base}results/before-acting/summary.png)."
+    )
+    return lines
+
+
+def before_acting_styles(base: str) -> list[str]:
+    """The default reader on the fresh held-out part, per style of the description."""
+    path = "before-acting/summary.json"
+    cell = _load(path)["results"]["emma-lwm-hedged"]["fresh"]
+    lines = [
+        "| style | entities | role right | movement right | calibration error of the role |",
+        "|---|---|---|---|---|",
+    ]
+    for style, c in cell["by_style"].items():
+        lines.append(
+            f"| {style} | {c['entities']} | {c['role_right']:.0%} | {c['movement_right']:.0%} | {c['ece_role']:.3f} |"
+        )
+    lines.append(f"\nPer entity, by the style of its description; {_link(path, base)}.")
+    return lines
+
+
+REVIEW_READING = (
+    ("reading-dataset", "the dataset's text"),
+    ("reading-dataset-questions", "the dataset's text, questions answered"),
+    ("reading-fresh", "fresh held-out, people's own words"),
+    ("reading-fresh-questions", "fresh held-out, questions answered"),
+)
+
+
+def review_loop_reading(base: str) -> list[str]:
+    """The review loop with the manual all the reviewer gives (`--teach none`), by who wrote it."""
+    from lwm_models.stats import mean_interval
+
+    lines = [
+        "| the game's manual | games | real return, mean (95% t interval) | won / died / time limit / aborted "
+        "| first plan's roles right | questions answered | approved plans that died | file |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for name, label in REVIEW_READING:
+        path = f"review-loop/{name}.jsonl"
+        if not (RESULTS / path).is_file():
+            continue
+        games = _load_jsonl(path)
+        mean, low, high = mean_interval([g["real_return"] for g in games])
+        outcomes = [g["outcome"] for g in games]
+        counts = " / ".join(str(outcomes.count(o)) for o in ("won", "died", "time_limit", "aborted"))
+        right = sum(g["first_roles_right"] for g in games)
+        asked = sum(g["questions_answered"] for g in games)
+        died = sum(g["approved_plan_died"] for g in games)
+        lines.append(
+            f"| {label} | {len(games)} | {mean:+.2f} ({low:+.2f}, {high:+.2f}) | {counts} | {right} of {len(games)} | "
+            f"{asked} | {died} | {_link(path, base)} |"
+        )
+    return lines
+
+
 TABLES: dict[str, Callable[[str], list[str]]] = {
+    "before-acting": before_acting,
+    "before-acting-styles": before_acting_styles,
+    "review-loop-reading": review_loop_reading,
     "effort": effort,
     "teaching-minibatch": teaching_minibatch,
     "teaching-overlap": teaching_overlap,

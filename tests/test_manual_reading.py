@@ -116,3 +116,13 @@ def test_imagination_follows_the_reading(served):
     assert np.allclose(cond.reading_log_prior.exp().numpy(), [p for _, p in configs], atol=1e-5)
     believed = (("airplane", "chaser", "enemy"), ("mage", "immovable", "message"), ("ship", "fleeing", "goal"))
     assert configs[0][0] == believed
+
+
+def test_an_entity_that_left_the_board_keeps_its_reading(served):
+    """Once the message is picked up the board shows two entities: the reading stays the one the
+    start was read with (the monitor imagines from such boards)."""
+    model, encoder = served
+    batch = model.read_manual(CLEAR, encoder)
+    whole = model.on_board(batch, BOARD).reading.to_json()
+    without_mage = torch.tensor([[IDENTITIES["airplane"], 0, IDENTITIES["ship"]]])
+    assert model.on_board(batch, without_mage).reading.to_json() == whole

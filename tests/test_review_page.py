@@ -196,8 +196,24 @@ def test_review_in_the_browser(unnamed_page_system, browser):
     learnt = browser.find_element("id", "progress").text
     assert learnt.startswith("the agent learnt from manual v2 in ") and "(2 rounds" in learnt, learnt
     legend = browser.find_element("id", "legend").text
-    assert "airplane: enemy, chaser" in legend
+    assert "airplane: enemy (100% sure), comes toward you (" in legend, legend  # the reading the agent acts on
     shoot(browser, tmp_path, "review_page_new_manual.png")
+
+    # Words that leave a fact open: the agent asks before it acts, and the answer settles it.
+    text = lambda element: browser.find_element("id", element).text  # noqa: E731
+    box.clear()
+    box.send_keys("there is an airplane somewhere.")
+    browser.find_element("id", "send-manual").click()
+    wait.until(lambda _: "manual v3" in title() and browser.find_element("id", "question").is_displayed())
+    question = browser.find_element("id", "question-text").text
+    assert "Does the airplane come toward you" in question or "Does the airplane " in question, question
+    choices = browser.find_elements("css selector", "#question-choices button")
+    assert len(choices) == 3
+    shoot(browser, tmp_path, "review_page_question.png")
+    next(c for c in choices if c.text == "comes toward you").click()
+    wait.until(lambda _: "it holds what you answered: the airplane comes toward you" in text("question-message"))
+    wait.until(lambda _: "manual v4" in title())
+    assert "airplane: enemy (100% sure), comes toward you (100% sure)" in browser.find_element("id", "legend").text
 
     # A correction of step 1 (the episode's real first state): the next plan takes that action there,
     # and the page says the planner took it.

@@ -68,3 +68,32 @@ def test_the_agent_learning_from_a_manual_is_said_in_a_line():
         "the world model read manual v2 as: airplane the enemy, comes toward you (93% sure), ball the message, "
         "moves away from you (93% sure), robot the goal, stays put (93% sure); the agent is learning"
     )
+
+
+def test_a_question_about_the_manual_is_asked_and_answered_in_plain_words():
+    import pytest
+
+    from lwm_models.agent.review_view import answered_manual
+
+    plan = copy.deepcopy(messages.schema("plan")["examples"][0])
+    with pytest.raises(ValueError, match="asks no question"):
+        answered_manual(plan, ["1"])
+    plan["questions"] = [
+        {"entity": "robot", "field": "movement", "p": 0.69,
+         "text": "Does the robot stay where it is, move away from you or come toward you?",
+         "choices": [{"value": "immovable", "words": "stays where it is"},
+                     {"value": "fleeing", "words": "moves away from you"},
+                     {"value": "chaser", "words": "comes toward you"}]},
+    ]  # fmt: skip
+    messages.validate("plan", plan)
+    assert "the agent is not sure (69%): Does the robot stay where it is" in plan_text(plan)
+    assert "q 1 stays where it is, q 2 moves away from you, q 3 comes toward you" in plan_text(plan, "none")
+    for bad in ([], ["4"], ["x"], ["1", "2"]):
+        with pytest.raises(ValueError, match="answer with one choice number: q 1 to q 3"):
+            answered_manual(plan, bad)
+    answer = answered_manual(plan, ["3"])
+    assert answer["descriptions"] == plan["manual"]
+    assert answer["facts"] == [{"entity": "robot", "field": "movement", "value": "chaser"}]
+    messages.validate("manual", {"version": 2, **answer})
+    plan["facts"] = answer["facts"]  # a second answer keeps the first
+    assert len(answered_manual(plan, ["1"])["facts"]) == 2

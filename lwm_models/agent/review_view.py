@@ -1,6 +1,7 @@
 """What a review page shows of the review's messages: each imagined or real frame as the cells to
 draw (the board rules of messenger/render.py, so the page and the PNGs agree), and the manual as
-a legend of identity, movement and role as the project's parser reads each description. The page
+a legend of identity, movement and role: as the agent reads the manual before acting (a plan's
+`roles`, the manual's reading), else as the project's parser reads each description. The page
 only draws; a description the parser cannot read shows as unknown, as it is to the reader too.
 Label requests come with their states' frames and where each state's trajectory was a step
 before; the ledger's records with a line of text each (as `lwm ledger show` prints them).
@@ -23,7 +24,20 @@ def frames(observations: Sequence) -> list[list[dict]]:
     return [board(np.asarray(obs, dtype=np.uint8)) for obs in observations]
 
 
-def legend(descriptions: Sequence[str]) -> list[dict]:
+def legend(descriptions: Sequence[str], roles: Sequence[dict] | None = None) -> list[dict]:
+    """Per entity, what the agent reads of it: with `roles` (a plan's, the manual's reading) its
+    role and movement as the agent acts on them, so the page shows one reading; else per
+    description as the parser reads it."""
+    if roles:
+        out = []
+        for e in roles:
+            letter, colour = identity_style(e["identity"])
+            moves = e.get("movement")
+            if moves and "movement_p" in e:
+                moves = f"{moves} ({e['movement_p']:.0%} sure)"
+            out.append({"description": "", "identity": e["identity"], "movement": moves,
+                        "role": f"{e['role']} ({e['p']:.0%} sure)", "letter": letter, "colour": colour})  # fmt: skip
+        return out
     out = []
     for text in descriptions:
         identity, movement, role = parse_description(text)
@@ -49,8 +63,8 @@ def plan_view(plan: dict) -> dict:
         letter, colour = identity_style(entry["identity"])
         imagined.append({"identity": entry["identity"], "letter": letter, "colour": colour, "said": describe(entry)})
     believes = believed(plan["roles"]) if plan.get("roles") else None
-    return {**plan, "frames": frames(plan["observations"]), "legend": legend(plan["manual"]), "imagined": imagined,
-            "believes": believes}  # fmt: skip
+    return {**plan, "frames": frames(plan["observations"]), "legend": legend(plan["manual"], plan.get("roles")),
+            "imagined": imagined, "believes": believes}  # fmt: skip
 
 
 def progress_view(progress: dict) -> dict:

@@ -171,6 +171,7 @@ class RoleBelief:
     # the person stated, as the world-model server read them.
     questions: list[dict] = field(default_factory=list)
     facts: list[dict] = field(default_factory=list)
+    movement_p: dict[int, float] = field(default_factory=dict)  # id -> how sure the reading is of its movement
 
     @classmethod
     def uniform(cls, ids) -> RoleBelief:
@@ -203,7 +204,10 @@ class RoleBelief:
         given = {tuple(a): p for a, p in zip(read["assignments"], read["assignment_p"], strict=True)}
         log_p = np.log(np.maximum([given.get(a, 0.0) for a in assignments], 1e-12))
         movements = {e["id"]: SAID_OF[e["movement"]] for e in read["reading"]}
-        return cls(ids, assignments, log_p, movements, list(read.get("questions", [])), list(read.get("facts", [])))
+        sure = {e["id"]: float(e["movement_p"]) for e in read["reading"]}
+        return cls(
+            ids, assignments, log_p, movements, list(read.get("questions", [])), list(read.get("facts", [])), sure
+        )
 
     @property
     def p(self) -> np.ndarray:
@@ -279,6 +283,8 @@ class RoleBelief:
                         "p": round(by_role[role], 3)})  # fmt: skip
             if ident in self.movements:
                 out[-1]["movement"] = self.movements[ident]
+            if ident in self.movement_p:
+                out[-1]["movement_p"] = round(self.movement_p[ident], 3)
         return out
 
 

@@ -141,6 +141,10 @@ def read_roles(roles: list[dict]) -> str:
     for entry in roles:
         sure = "unsure" if entry["p"] < 0.6 else f"{entry['p']:.0%} sure"
         moves = f", {entry['movement']}" if entry.get("movement") not in (None, "not seen") else ""
+        if "movement_p" in entry:  # the manual's reading says how sure it is of each
+            moving = "unsure" if entry["movement_p"] < 0.6 else f"{entry['movement_p']:.0%} sure"
+            said.append(f"{entry['identity']} the {entry['role']} ({sure}){moves} ({moving})")
+            continue
         said.append(f"{entry['identity']} the {entry['role']}{moves} ({sure})")
     return ", ".join(said)
 

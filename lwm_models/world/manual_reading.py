@@ -57,6 +57,7 @@ SENTENCE_TOKENS = 96  # tokens the sentence head reads of a description
 ASK_BELOW = 0.9  # a fact the reading is less sure of than this is asked about before planning
 MAX_QUESTIONS = 3  # questions a manual asks at most before its plan
 MOVEMENT_WORDS = {"chaser": "comes toward you", "fleeing": "moves away from you", "immovable": "stays where it is"}
+ASKED_MOVEMENT = {"chaser": "come toward you", "fleeing": "move away from you", "immovable": "stay where it is"}
 ROLE_WORDS = {"enemy": "the enemy", "message": "the message", "goal": "the goal"}
 
 
@@ -252,7 +253,7 @@ class Question:
     @property
     def text(self) -> str:
         if self.field == "movement":
-            options = [MOVEMENT_WORDS[c] for c in self.choices]
+            options = [ASKED_MOVEMENT[c] for c in self.choices]
             return f"Does the {self.entity} {', '.join(options[:-1])} or {options[-1]}?"
         options = [ROLE_WORDS[c] for c in self.choices]
         return f"Is the {self.entity} {', '.join(options[:-1])} or {options[-1]}?"
@@ -261,6 +262,12 @@ class Question:
         words = MOVEMENT_WORDS if self.field == "movement" else ROLE_WORDS
         return {"entity": self.entity, "field": self.field, "text": self.text, "p": round(self.p, 3),
                 "choices": [{"value": c, "words": words[c]} for c in self.choices]}  # fmt: skip
+
+
+def fact_words(fact: Mapping) -> str:
+    """A stated fact in plain words: "the airplane comes toward you", "the ship is the goal"."""
+    words = MOVEMENT_WORDS if fact["field"] == "movement" else {r: f"is {w}" for r, w in ROLE_WORDS.items()}
+    return f"the {fact['entity']} {words[fact['value']]}"
 
 
 def check_fact(fact: Mapping, board: Sequence[str] | None = None) -> dict:
@@ -420,15 +427,13 @@ def read_manual(
 ) -> ManualReading:
     """The reading of a manual of three descriptions (their `evidence`) on a board of three entity
     ids, with the facts a person stated."""
-    entities = tuple(sorted(int(b) for b in board if b))
-    if len(evidence) != 3 or len(entities) != 3:
-        raise LwmError(
-            f"a manual reads three descriptions onto three entities, got {len(evidence)} and {len(entities)}"
-        )
+    if len(evidence) != 3:
+        raise LwmError(f"a manual has three descriptions, got {len(evidence)}")
+    ident = [calibration.distribution(ev, "identity") for ev in evidence]
+    entities = _completed(sorted({int(b) for b in board if b}), ident)
     names = [ID_TO_IDENTITY[e] for e in entities]
     stated = [check_fact(f, names) for f in facts]
     tau, tau_m = calibration.temperature, calibration.movement_temperature
-    ident = [calibration.distribution(ev, "identity") for ev in evidence]
     role = [calibration.distribution(ev, "role") for ev in evidence]
     move = np.array([[calibration.distribution(ev, "movement")[v] for v in MOVEMENTS] for ev in evidence])
     move = move**tau_m
@@ -449,6 +454,19 @@ def read_manual(
             log_w[m, r] = tau * (base + sum(math.log(max(role[j][ROLES[given[j]]], 1e-12)) for j in range(3)))
     w = np.exp(log_w - log_w.max())
     return ManualReading(entities, w / w.sum(), movement, tuple(stated))
+
+
+def _completed(on_board: list[int], ident: list[dict[str, float]]) -> tuple[int, ...]:
+    """The board's three entities: those in sight, and for each that left it (the message once
+    picked up, the goal once reached) the identity the descriptions most likely name that is not
+    in sight, so that the reading during an episode is the one its start was read with."""
+    if len(on_board) > 3:
+        raise LwmError(f"a board has three entities, got {len(on_board)}")
+    out = list(on_board)
+    while len(out) < 3:
+        score = {IDENTITIES[n]: sum(d[n] for d in ident) for n in IDENTITIES if IDENTITIES[n] not in out}
+        out.append(max(sorted(score), key=lambda i: score[i]))
+    return tuple(sorted(out))
 
 
 # ---------------------------------------------------------------------- the evidence
@@ -521,6 +539,7 @@ __all__ = [
     "SentenceHead",
     "calibration_for",
     "check_fact",
+    "fact_words",
     "evidence_for",
     "fact_probs",
     "fit_fact_weights",

@@ -16,7 +16,14 @@ from typing import TYPE_CHECKING
 
 from lwm_models import messages
 from lwm_models.agent.imaginer import Unavailable
-from lwm_models.agent.review_view import history_view, label_request_view, plan_view, progress_view, report_view
+from lwm_models.agent.review_view import (
+    answered_manual,
+    history_view,
+    label_request_view,
+    plan_view,
+    progress_view,
+    report_view,
+)
 from lwm_models.errors import LwmError
 from lwm_nodes.review_page import ReviewPage, reply
 from lwm_nodes.reviewer import Reviewer, show
@@ -43,6 +50,7 @@ class PageReviewer(Reviewer):
             history=self.history,
             on_episode=self.on_episode,
             on_reviewer=self.on_reviewer,
+            on_answer=self.on_answer,
             reviewer=node.signer.reviewer,
         )
 
@@ -125,6 +133,13 @@ class PageReviewer(Reviewer):
         msg_id = self.node.send_labels(labels["states"], labels["actions"], labels["request_id"])
         self.node.get_logger().info(f"page: {len(labels['states'])} label(s) for request {labels['request_id']}")
         return self._answer(msg_id, "the planner")
+
+    def on_answer(self, body: dict) -> str:
+        """An answer to the plan's question about the manual: the manual again, with the fact."""
+        manual = answered_manual(self.node.plan, [str(body.get("choice", ""))])
+        msg_id = self.node.publish_manual(manual)
+        self.node.get_logger().info(f"page: answered {manual['facts'][-1]}")
+        return self._answer(msg_id, "the world-model server")
 
     def on_manual(self, body: dict) -> str:
         msg_id = self.node.publish_manual({"descriptions": body["descriptions"], "source": "human"})

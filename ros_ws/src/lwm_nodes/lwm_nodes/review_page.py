@@ -6,7 +6,8 @@ a snapshot of what is under review (GET /api/state), live updates as server-sent
 reconnects after a node restart, gets what is shown now first, "no label request" included), the
 review history from the ledger (GET
 /api/history, /api/history?review=ID; the node asks the planner, which owns the ledger), and the person's
-answers (POST /api/feedback, /api/labels, /api/manual), which the node signs and publishes, the
+answers (POST /api/feedback, /api/labels, /api/manual, /api/answer: a plan's question about the
+manual answered with a choice number), which the node signs and publishes, the
 next episode or this one again (POST /api/episode), and who is reviewing (GET and POST
 /api/reviewer: the node signs as that person from then on; every open page hears it). It
 binds to localhost unless told otherwise. A POST must be JSON and, when the browser names an
@@ -25,6 +26,7 @@ from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 from urllib.parse import parse_qs, urlsplit
 
+from lwm_models.errors import LwmError
 from lwm_models.messages import plain_reason
 
 PAGE = Path(__file__).with_name("web") / "review.html"
@@ -72,6 +74,7 @@ class ReviewPage:
         history: Callable[[str | None], dict],
         on_episode: Callable[[dict], str] | None = None,
         on_reviewer: Callable[[dict], str] | None = None,
+        on_answer: Callable[[dict], str] | None = None,
         reviewer: str = "",
         html: Path = PAGE,
         kinds: tuple[str, ...] | None = None,
@@ -86,6 +89,7 @@ class ReviewPage:
         self.on_feedback, self.on_manual, self.on_labels, self.history = on_feedback, on_manual, on_labels, history
         self.on_episode = on_episode or _no_episodes
         self.on_reviewer = on_reviewer or _fixed_reviewer
+        self.on_answer = on_answer or _no_questions
         self.reviewer = reviewer  # whose key signs the answers (shown on the page); "": nobody yet
         self._state["reviewer"] = {"reviewer": reviewer}
         self.server = ThreadingHTTPServer((host, port), _handler(self))
@@ -155,6 +159,10 @@ def _no_episodes(body: dict) -> str:
     raise ValueError("this page cannot start episodes")
 
 
+def _no_questions(body: dict) -> str:
+    raise LwmError("this page takes no answers to questions")
+
+
 def _fixed_reviewer(body: dict) -> str:
     raise ValueError("this page's reviewer is fixed")
 
@@ -193,6 +201,7 @@ def _handler(page: ReviewPage) -> type[BaseHTTPRequestHandler]:
                 "/api/manual": page.on_manual,
                 "/api/episode": page.on_episode,
                 "/api/reviewer": page.on_reviewer,
+                "/api/answer": page.on_answer,
             }
             handle = routes.get(self.path)
             origin = self.headers.get("Origin")

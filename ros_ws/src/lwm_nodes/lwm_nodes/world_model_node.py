@@ -27,7 +27,9 @@ import json
 
 from rclpy.callback_groups import ReentrantCallbackGroup
 
+from lwm_models.errors import LwmError
 from lwm_models.world.imagine_server import WorkerImagineServer
+from lwm_models.world.manual_reading import fact_words
 from lwm_models.world.model_server import WorldModelServer
 from lwm_nodes.common import LATCHED, JsonNode, agent_topic, declare_agents, run
 from lwm_nodes.trust import declare_keyring, verified
@@ -85,11 +87,15 @@ class SimulatorNode(JsonNode):
 
     def on_feedback(self, payload: dict, agent: str | None) -> str:
         """A person's manual, for one agent or (agent None) for every agent the server serves."""
-        source = payload.get("source", "human")
+        source, facts = payload.get("source", "human"), payload.get("facts", [])
+        if facts and agent is None:  # an answer is about one board: one agent's
+            if len(self.sim.agents) > 1:
+                raise LwmError("an answer (facts) is about one agent's board: send it on that agent's feedback/manual")
+            agent = self.sim.default_agent
         if agent is None:
             outcome = self.sim.set_fleet_manual(payload["descriptions"], source)
         else:
-            outcome = {agent: self.sim.set_manual(payload["descriptions"], source, agent)}
+            outcome = {agent: self.sim.set_manual(payload["descriptions"], source, agent, facts)}
         changed = [a for a, (_, fresh) in outcome.items() if fresh]
         if not changed:
             versions = sorted({v for v, _ in outcome.values()})
@@ -102,6 +108,8 @@ class SimulatorNode(JsonNode):
         else:
             whom = ", ".join(f"{a} (v{outcome[a][0]})" for a in changed)
             said = f"manual taken for {whom}: the world model reads it and each of them re-plans"
+        if facts:
+            said += "; it holds what you answered: " + ", ".join(fact_words(f) for f in facts)
         note = self.sim.ungrounded(changed[0])
         if note is not None:
             said += f"; but {note}"
