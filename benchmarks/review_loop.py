@@ -40,7 +40,7 @@ from lwm_models.stats import mean_interval  # noqa: E402
 from lwm_models.world.shipped import SHIPPED, SYSTEM_WORLD_MODEL  # noqa: E402
 
 TEXTS = ROOT.parent / "shared" / "data" / "messenger-texts"
-ANSWERED = re.compile(r"scripted human: answered ")
+ANSWERED = re.compile(r"scripted human: answered .* on plan \d+ at ([\d.]+)")
 SPOKEN = re.compile(r"manual feedback on plan \d+ at ([\d.]+)")
 STATS = re.compile(r"imagine calls (\d+), round trip ([\d.]+) s, world-model server ([\d.]+) s")
 
@@ -92,11 +92,13 @@ def run_game(index: int, seed: int, args, work: Path) -> dict:
         if nxt is not None:
             said = kind if kind != "labels" else f"labels -> {nxt['kind'].replace('_', ' ')}"
             revise.append((said, nxt["time"] - r["time"]))
-    for said in map(float, SPOKEN.findall((logs / "human.log").read_text())):
-        # From the human node's publication on /feedback/manual to the plan under the new manual.
-        nxt = next((q for q in records if q["kind"] == "plan" and q["time"] > said), None)
-        if nxt is not None and nxt["payload"]["reason"] == "manual":
-            revise.append(("manual", nxt["time"] - said))
+    human_log = (logs / "human.log").read_text()
+    for kind, pattern in (("manual", SPOKEN), ("answer", ANSWERED)):
+        for said in map(float, pattern.findall(human_log)):
+            # From the human node's publication on /feedback/manual to the plan under the new manual.
+            nxt = next((q for q in records if q["kind"] == "plan" and q["time"] > said), None)
+            if nxt is not None and nxt["payload"]["reason"] == "manual":
+                revise.append((kind, nxt["time"] - said))
     m = STATS.search((logs / "planner.log").read_text())
     # The reviewer's effort: every state a label request asked about, the labels given, the
     # corrected steps and the manuals written (the scripted reviewer answers all it is asked).
@@ -120,7 +122,7 @@ def run_game(index: int, seed: int, args, work: Path) -> dict:
         "first_roles_right": bool(first.get("roles"))
         and all(e["role"] == truth[e["identity"]] for e in first["roles"]),
         "questions_asked": len(first.get("questions", [])),
-        "questions_answered": len(ANSWERED.findall((logs / "human.log").read_text())),
+        "questions_answered": len(ANSWERED.findall(human_log)),
         "approved_plan_died": any(any(x < 0 for x in p["rewards"]) for p in approved),
         "revise": revise,
         "imagine_calls": int(m.group(1)) if m else None,

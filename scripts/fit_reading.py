@@ -1,5 +1,6 @@
 """Fit a model's reading calibration (lwm_models/world/manual_reading.py) and write it beside the
-checkpoint as reading.json; with --words-only, the calibration of the keyword parser alone
+checkpoint as reading.json, with the anchors imagination conditions each believed triple on
+(reading_anchors.safetensors); with --words-only, the calibration of the keyword parser alone
 (lwm_models/text/words_reading.json), which models without prototypes use.
 
 What it is fitted on, never on what a report is made on:
@@ -39,13 +40,16 @@ from lwm_models.text.stress import load_stress  # noqa: E402
 from lwm_models.world.checkpoint import load_checkpoint  # noqa: E402
 from lwm_models.world.frozen_text import FrozenTextEncoder  # noqa: E402
 from lwm_models.world.manual_reading import (  # noqa: E402
+    ANCHORS_FILE,
     CALIBRATION_FILE,
     Calibration,
     evidence_for,
+    fit_anchors,
     fit_fact_weights,
     fit_head,
     fit_identity_rates,
     read_manual,
+    save_anchors,
     sentence_vectors,
 )
 
@@ -194,12 +198,23 @@ def main() -> int:
         "generator": f"{GENERATED_PER_TRIPLE} per triple",
         "dataset": [p.name for p in args.texts] and ["train", *DEV_SPLITS],
         "stray weight": STRAY_WEIGHT,
+        "anchors": "the dataset's training and dev text where it has the triple, else the generator's"
+        if args.texts
+        else "the generator's text",
         "temperature manuals": f"{len(games)} games of {', '.join(DEV_SPLITS)}, the stress set's written part",
         "model": "the keyword parser alone" if model is None else folder.name,
         "seed": args.seed,
         "command": " ".join(["scripts/fit_reading.py", *sys.argv[1:]]),
     }
     calibration.save(out)
+    if model is not None:
+        # The anchors: the dataset's training and dev text where it has the triple, else the generator's.
+        trained = {t: sources.get("dataset", {}).get(t) or sources["generator"][t] for t in ALL_TRIPLES}
+        save_anchors(folder / ANCHORS_FILE, *fit_anchors(model, encoder, trained))
+        dataset_triples = sum(1 for t in ALL_TRIPLES if sources.get("dataset", {}).get(t))
+        print(
+            f"anchors: {dataset_triples} triples from the dataset's text, {108 - dataset_triples} from the generator's"
+        )
     print(f"temperature {calibration.temperature}, movement {calibration.movement_temperature}")
     for cls, r in sorted(calibration.identity.items()):
         print(f"  identity {cls:18s} {r}")

@@ -538,3 +538,58 @@ def test_a_stop_ends_the_teaching_within_2_s_and_the_ledger_stays_consistent(sys
     later = json.dumps({**base, "plan_id": revised["plan_id"], "decision": "stop"})  # nothing to stop now
     again = lwm_ros(system, "pub", "/review/feedback", later, "--kind", "review_feedback", *signed(system))
     assert again.returncode == 1 and "nothing under way to stop" in again.stderr, again.stderr
+
+
+def test_the_terminal_asks_about_an_unclear_manual_and_takes_the_answer(system):
+    """A manual that leaves the robot's movement unclear: the terminal shows the agent's question,
+    refuses a choice that is not offered in plain words, and `q N` sends the answer, which the
+    world-model server holds and the next plan rests on."""
+    log_path = system["tmp"] / "terminal-question.log"
+    log = open(log_path, "w")
+    keys = str(system["tmp"] / "logs" / "reviewer_keys.json")
+    human = subprocess.Popen(
+        [sys.executable, "-m", "lwm_nodes.human_node", "--ros-args", "-p", f"keys_file:={keys}"],
+        stdin=subprocess.PIPE,
+        stdout=log,
+        stderr=subprocess.STDOUT,
+        env={**system["env"], "PYTHONUNBUFFERED": "1"},
+        text=True,
+    )
+
+    def type_line(line: str) -> None:
+        human.stdin.write(line + "\n")
+        human.stdin.flush()
+
+    def said(words: str, timeout: float = 60) -> bool:
+        return bool(wait_for(lambda: words in log_path.read_text(), timeout=timeout))
+
+    try:
+        assert said("READY")
+        before = latched(system, "/planner/plan")["plan_id"]
+        type_line("m")
+        for line in ("the plane chases you and it is deadly", "the ball has the secret message and runs away from you",
+                     "there is a robot somewhere"):  # fmt: skip
+            type_line(line)
+        assert said("world-model server: manual version"), log_path.read_text()[-2000:]
+        plan = wait_for(
+            lambda: (p := latched(system, "/planner/plan"))["plan_id"] > before and p.get("questions") and p
+        )
+        assert plan, latched(system, "/planner/plan")
+        asked = plan["questions"][0]
+        assert asked["entity"] == "robot" and asked["field"] == "movement", asked
+        assert said("the agent is not sure (") and said(asked["text"]), log_path.read_text()[-2000:]
+        type_line("q 7")
+        assert said("not sent: answer with one choice number: q 1 to q 3"), log_path.read_text()[-2000:]
+        choice = 1 + [c["value"] for c in asked["choices"]].index("immovable")
+        type_line(f"q {choice}")
+        assert said("it holds what you answered: the robot stays where it is"), log_path.read_text()[-2000:]
+        revised = wait_for(lambda: (p := latched(system, "/planner/plan"))["plan_id"] > plan["plan_id"] and p)
+        assert revised and {"entity": "robot", "field": "movement", "value": "immovable"} in revised["facts"]
+        robot = next(e for e in revised["roles"] if e["identity"] == "robot")
+        assert robot["movement"] == "stays put" and robot["movement_p"] == 1.0
+        assert status(system)["facts"] == revised["facts"]
+    finally:
+        human.send_signal(signal.SIGINT)
+        human.wait(timeout=30)
+        log.close()
+    assert human.returncode == 0

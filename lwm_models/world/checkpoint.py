@@ -21,7 +21,7 @@ from safetensors.torch import load_file, save_file
 
 from ..errors import LwmError
 from .base import WorldModel
-from .manual_reading import CALIBRATION_FILE, Calibration
+from .manual_reading import ANCHORS_FILE, CALIBRATION_FILE, Calibration, load_anchors
 from .registry import build_model, config_from_dict, config_to_dict
 
 FORMAT = "lwm-world-model"
@@ -155,6 +155,14 @@ def load_checkpoint(directory: str | Path, kind: str | None = None) -> tuple[Wor
         model.max_readings = int(config["hedged_reading"].get("max_readings", model.max_readings))
         # of them, those predicting past the first steps (the likeliest then; 0: all)
         model.keep_readings = int(config["hedged_reading"].get("keep_readings", model.keep_readings))
-    if hasattr(model, "reading_calibration") and (directory / CALIBRATION_FILE).is_file():
-        model.reading_calibration = Calibration.load(directory / CALIBRATION_FILE)  # world/manual_reading.py
+    reading = [(directory / name).is_file() for name in (CALIBRATION_FILE, ANCHORS_FILE)]
+    if hasattr(model, "reading_calibration") and all(reading):
+        # The manual's reading (world/manual_reading.py): its calibration and its anchors, together.
+        model.reading_calibration = Calibration.load(directory / CALIBRATION_FILE)
+        model.anchor_keys, model.anchor_values = load_anchors(directory / ANCHORS_FILE)
+    elif any(reading):
+        raise CheckpointError(
+            f"{directory} holds half of a reading: {CALIBRATION_FILE} and {ANCHORS_FILE} go together "
+            "(scripts/fit_reading.py writes both)"
+        )
     return model.eval(), config

@@ -453,9 +453,12 @@ class HedgedReading:
         # Ground the words' entities on the board before reading (`ground_words`); a checkpoint's
         # config turns it on (`hedged_reading.ground`).
         self.ground = False
-        # The calibration of the manual's reading before any step (world/manual_reading.py), shipped
-        # beside the checkpoint; None: imagination reads the words' readings by their priors.
+        # The calibration of the manual's reading before any step (world/manual_reading.py) and the
+        # anchors imagination conditions each believed triple on ([108, W] each), shipped beside the
+        # checkpoint; None: imagination reads the words' readings by their priors.
         self.reading_calibration = None
+        self.anchor_keys: torch.Tensor | None = None
+        self.anchor_values: torch.Tensor | None = None
 
     def read_manual(self, descriptions, encoder, parse=None) -> ManualBatch:
         """The manual of three descriptions as this model reads it; with a reading calibration,
@@ -541,17 +544,17 @@ class HedgedReading:
 
     def _configured(self, manual: ManualBatch) -> Readings:
         """The readings of a manual read on its board (`manual.reading`): its likeliest complete
-        readings with their probabilities, each description conditioned on the model's own reading
-        where that is the triple the reading gives it, else on that triple's prototype."""
-        keys, values = self._read(manual)
-        _, nearest = prototype_distances(keys, values, self.proto_keys, self.proto_values).min(-1)
+        readings with their probabilities, each description conditioned on its triple's anchor
+        (`manual_reading.fit_anchors`): what the model reads from the most typical description of
+        that triple in the text it was trained on. A plan is then imagined in the model's own
+        language whatever the person's words; their own reading, off that language, imagined
+        deaths in every plan of games whose plans with the dataset's text mostly lived."""
         index = {t: k for k, t in enumerate(ALL_TRIPLES)}
         ks, vs, priors = [], [], []
         for triples, p in manual.reading.configurations():
-            own = [bool(nearest[0, j] == index[t]) for j, t in enumerate(triples)]
             picks = [index[t] for t in triples]
-            ks.append(torch.stack([keys[0, j] if own[j] else self.proto_keys[t] for j, t in enumerate(picks)]))
-            vs.append(torch.stack([values[0, j] if own[j] else self.proto_values[t] for j, t in enumerate(picks)]))
+            ks.append(self.anchor_keys[picks])
+            vs.append(self.anchor_values[picks])
             priors.append(p)
         stands = torch.zeros(1, 3, dtype=torch.bool)
         log_prior = torch.log(torch.tensor(priors, dtype=torch.float64)).float()

@@ -53,6 +53,7 @@ from ..messenger.constants import ID_TO_IDENTITY, IDENTITIES, MOVEMENTS, ROLES, 
 FIELDS = ("identity", "movement", "role")
 VALUES: dict[str, tuple[str, ...]] = {"identity": tuple(IDENTITIES), "movement": MOVEMENTS, "role": ROLES}
 CALIBRATION_FILE = "reading.json"  # beside a checkpoint's weights
+ANCHORS_FILE = "reading_anchors.safetensors"  # and what imagination conditions each triple on
 SENTENCE_TOKENS = 96  # tokens the sentence head reads of a description
 ASK_BELOW = 0.9  # a fact the reading is less sure of than this is asked about before planning
 MAX_QUESTIONS = 3  # questions a manual asks at most before its plan
@@ -523,6 +524,42 @@ def evidence_for(
             for k, w in enumerate(words)]  # fmt: skip
 
 
+def fit_anchors(model, encoder, texts_by_triple: Mapping[Triple, Sequence[str]]) -> tuple:
+    """Each triple's anchor (keys, values [108, W]): what `model` reads from the description of that
+    triple whose reading lies nearest the mean of its readings, among `texts_by_triple` (the text
+    it was trained on: the dataset's training and dev descriptions; the generator's where those
+    have none)."""
+    import torch
+
+    from ..messenger.constants import ALL_TRIPLES
+
+    keys, values = [], []
+    with torch.no_grad():
+        for t in ALL_TRIPLES:
+            k, v = model._read_texts(encoder, list(texts_by_triple[t]))
+            typical = int(((k - k.mean(0)).pow(2).sum(1) + (v - v.mean(0)).pow(2).sum(1)).argmin())
+            keys.append(k[typical])
+            values.append(v[typical])
+    return torch.stack(keys), torch.stack(values)
+
+
+def save_anchors(path: str | Path, keys, values) -> None:
+    from safetensors.torch import save_file
+
+    save_file({"keys": keys.half().contiguous(), "values": values.half().contiguous()}, str(path))
+
+
+def load_anchors(path: str | Path) -> tuple:
+    """The anchors beside a checkpoint (`fit_anchors`), as float32 tensors."""
+    from safetensors.torch import load_file
+
+    try:
+        found = load_file(str(path))
+        return found["keys"].float(), found["values"].float()
+    except (OSError, KeyError, RuntimeError) as exc:
+        raise LwmError(f"cannot read the reading's anchors {path}: {exc}") from None
+
+
 def calibration_for(checkpoint: str | Path | None) -> Calibration:
     """The calibration shipped beside a checkpoint; the words-only one for a model without one."""
     if checkpoint is not None and (Path(checkpoint) / CALIBRATION_FILE).is_file():
@@ -541,6 +578,9 @@ __all__ = [
     "check_fact",
     "fact_words",
     "evidence_for",
+    "fit_anchors",
+    "load_anchors",
+    "save_anchors",
     "fact_probs",
     "fit_fact_weights",
     "fit_head",

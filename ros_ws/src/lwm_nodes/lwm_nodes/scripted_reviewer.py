@@ -61,7 +61,12 @@ class SimulatedReviewer(Reviewer):
         if fact is not None:  # the answer is part of the manual: the planner re-plans under it
             facts = [*plan.get("facts", []), fact]
             self.node.publish_manual({"descriptions": plan["manual"], "facts": facts, "source": "human"})
-            print(f"scripted human: answered {plan['questions'][0]['text']!r} with {fact['value']}", flush=True)
+            asked, at = plan["questions"][0]["text"], time.time()
+            # The wall time lets benchmarks/review_loop.py time the answer -> revised plan.
+            print(
+                f"scripted human: answered {asked!r} with {fact['value']} on plan {plan['plan_id']} at {at:.3f}",
+                flush=True,
+            )
             return
         feedback = self.expert.review(plan, self.node.imaginer)
         self.node.publish_feedback(feedback)
