@@ -323,3 +323,33 @@ def test_a_stop_ends_the_execution_before_the_agent_s_next_move(encoder):
     with pytest.raises(FeedbackError, match="is over"):
         h.loop.on_feedback({**base, "plan_id": 9, "decision": "reject"})
     h.loop.close()
+
+
+def test_an_answer_re_plans_and_teaches_again_only_when_it_changes_what_the_agent_acts_on(encoder):
+    """A person's answer (the same words, a fact stated): one that confirms the roles and movements
+    the agent acts on re-plans at once, without teaching itself again; one that contradicts them
+    makes the agent learn again under the corrected reading, which the next plan says."""
+    sim = WorldModelServer(encoder=encoder)
+    h = LoopHarness(sim, Budget(iterations=1, episodes=2, grad_steps=2))
+    state = h.session.reset(0)
+    words = h.session.manual()["descriptions"]
+    sim.take_env_manual(words, state["episode_id"])
+    h.loop.on_status(sim.status())
+    h.loop.on_state(state)
+    first = h.wait(h.plans, 1)
+    taught = len(h.progress)
+    entity = first["roles"][0]
+    confirm = {"entity": entity["identity"], "field": "role", "value": entity["role"]}
+    sim.set_manual(words, "human", facts=[confirm])
+    h.loop.on_status(sim.status())
+    second = h.wait(h.plans, 2)
+    assert second["reason"] == "manual" and second["facts"] == [confirm] and len(h.progress) == taught
+    assert next(e for e in second["roles"] if e["identity"] == entity["identity"])["p"] == 1.0
+    other = next(r for r in ("enemy", "message", "goal") if r != entity["role"])
+    contradict = {"entity": entity["identity"], "field": "role", "value": other}
+    sim.set_manual(words, "human", facts=[contradict])
+    h.loop.on_status(sim.status())
+    third = h.wait(h.plans, 3)
+    assert len(h.progress) > taught  # it learnt again under the corrected reading
+    assert next(e for e in third["roles"] if e["identity"] == entity["identity"])["role"] == other
+    h.loop.close()

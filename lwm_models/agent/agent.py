@@ -29,7 +29,7 @@ from ..world.imagine import Imagination
 from ..world.manual import ManualError
 from .learning import Budget, LabelledSet, RoundLabeller, fit_labels, online_imitation
 from .policy import EmmaPolicy, act, policy_manual, stack_history
-from .roles import RoleBelief
+from .roles import RoleBelief, believe
 from .self_teaching import Ask, Teaching, TeachingResult, teach
 from .understood import read_back
 
@@ -324,6 +324,20 @@ class PlanReviewAgent:
             self.labelled.add(*result.taught)
         self.hold_corrections()
         return result
+
+    def confirmed(self, starts: np.ndarray) -> bool:
+        """Facts the person just stated (the same words, an answer more) that confirm what the agent
+        acts on: it takes the sharper reading without teaching itself again, since every label it
+        made came from the roles and movements the answer confirms. False where the answer changed
+        a role or a movement the agent acted on (it must learn again) or the words changed."""
+        if self.belief is None or self.taught_manual[:1] != (tuple(self.manual),):
+            return False
+        read = believe(self.imaginer, starts)
+        if read.best()[0] != self.belief.best()[0] or read.movements != self.belief.movements:
+            return False
+        self.belief = read
+        self.taught_manual = (tuple(self.manual), self.facts)
+        return True
 
     def _fit(self, updates: int) -> None:
         h, y = self.labelled.arrays()

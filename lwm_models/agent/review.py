@@ -419,7 +419,10 @@ class ReviewLoop:
     def _plan(self, r: Review, reason: str) -> None:
         start, start_step, before = self._start_of(r)
         if reason in ("start", "manual") and self.config.teaching.rounds and r.agent.unread:
-            self._teach_self(r, fresh=reason == "manual")
+            if reason == "manual" and r.agent.confirmed(self._starts(r)):
+                self.ports.log(f"review {r.review_id}: the answer confirms the roles and movements it acts on")
+            else:
+                self._teach_self(r, fresh=reason == "manual")
         for _ in range(3):  # a manual that changed while imagining makes the plan stale: imagine again
             with self.lock:
                 r.plans += 1
