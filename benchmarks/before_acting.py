@@ -21,7 +21,7 @@ each description one of its triple's three, in any of the seven styles; per styl
 described in it), and `unusable` (its unusable part, three per manual).
 
     flock /tmp/lwm-heavy.lock .venv/bin/python benchmarks/before_acting.py --models emma-lwm-hedged words \\
-        --texts ../shared/data/messenger-texts/text_train.json ../shared/data/messenger-texts/text_val.json
+        --texts PATH/text_train.json PATH/text_val.json
 """
 
 from __future__ import annotations

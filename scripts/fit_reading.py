@@ -13,7 +13,7 @@ What it is fitted on, never on what a report is made on:
   drawn from the stress set's hand-written part, the text most like a person's own.
 
     flock /tmp/lwm-heavy.lock .venv/bin/python scripts/fit_reading.py --model emma-lwm-hedged \\
-        --texts ../shared/data/messenger-texts/text_train.json ../shared/data/messenger-texts/text_val.json
+        --texts PATH/text_train.json PATH/text_val.json
 """
 
 from __future__ import annotations

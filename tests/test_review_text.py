@@ -97,3 +97,29 @@ def test_a_question_about_the_manual_is_asked_and_answered_in_plain_words():
     messages.validate("manual", {"version": 2, **answer})
     plan["facts"] = answer["facts"]  # a second answer keeps the first
     assert len(answered_manual(plan, ["1"])["facts"]) == 2
+
+
+def test_every_line_typed_at_the_terminal_gets_a_command_or_a_reason_in_plain_words():
+    import pytest
+    from lwm_nodes.terminal_reviewer import parse_command
+
+    taken = {
+        "a": ("a", []), "approve": ("a", []), "reject": ("r", []), "abort": ("x", []), "stop": ("stop", []),
+        "c 3:1 4:right": ("c", [(3, 1), (4, 3)]), "correct 2:Stay": ("c", [(2, 4)]), "i": ("i", []),
+        "teach 2": ("i", [2]), "l -": ("l", []), "l 0:up": ("l", [(0, 0)]), "n": ("n", []), "next 7": ("n", [7]),
+        "s 2": ("s", [2]), "q 1": ("q", ["1"]), "m": ("m", []), "restart": ("restart", []), "": ("", []),
+    }  # fmt: skip
+    for line, parsed in taken.items():
+        assert parse_command(line) == parsed, line
+    refused = {
+        "c hello": "a correction is STEP:ACTION", "c 3:sideways": "a correction is STEP:ACTION",
+        "c": "say which steps to correct", "i abc": "it is a number, e.g. i 2", "n x": "e.g. n 7",
+        "s": "s takes a state number", "l 1": "a label is STATE:ACTION", "q": "q takes a choice",
+        "a now": "a takes nothing after it", "hello": "unknown command",
+    }  # fmt: skip
+    for line, reason in refused.items():
+        with pytest.raises(ValueError) as caught:
+            parse_command(line)
+        said = str(caught.value)
+        assert reason in said, (line, said)
+        assert "invalid literal" not in said and "unpack" not in said, (line, said)

@@ -3,7 +3,8 @@ futures are printed, and the person answers on stdin:
 
     a                 approve (the planner's policy then acts in the real game)
     r                 reject (the planner imagines again)
-    c STEP:ACTION ... corrections, e.g. "c 1:3 2:3" (actions 0 up, 1 down, 2 left, 3 right, 4 stay)
+    c STEP:ACTION ... corrections, e.g. "c 1:3 2:right" (actions 0 up, 1 down, 2 left, 3 right, 4 stay,
+                      by number or name)
     i [ROUNDS]        teach: rounds of learning in imagination, each asking you to label a few
                       imagined states (where the agent is unsure what the manual means)
     stop              end the teaching under way (the agent keeps what it learnt, re-plans),
@@ -11,7 +12,8 @@ futures are printed, and the person answers on stdin:
     l STATE:ACTION ...  label states of the current label request ("l -" sends none); one answer
                       per request, before the planner stops waiting (the request's timeout)
     x                 abort: execute nothing
-    m                 a new manual, three descriptions, one per line (published on /feedback/manual)
+    m                 the manual under review, then a new one: three descriptions, one per line
+                      (published on /feedback/manual)
     q N               answer the plan's question about the manual with choice N (1, 2 or 3): the
                       fact joins the manual, and the agent re-plans under it
     n [SEED]          the next episode of this game (the next seed, or SEED): a fresh review
@@ -19,7 +21,9 @@ futures are printed, and the person answers on stdin:
     f                 every frame of the plan (a plan shows its start and last board, a line per step)
     s N               state N of the label request, beside the state a step before it
 
-Every answer, label batch and manual gets the receiving node's answer on /lwm/acks, printed here:
+A command may be typed in full (approve, reject, abort, teach, manual, next, ...). A line that is
+no command, or whose arguments are not the command's, is answered in plain words and sends
+nothing. Every answer, label batch and manual gets the receiving node's answer on /lwm/acks, printed here:
 taken, or refused with the reason. Answers are signed as reviewer `reviewer` (default: terminal).
 """
 
@@ -32,6 +36,7 @@ from typing import TYPE_CHECKING
 
 from lwm_models.agent.review_text import progress_text, state_text
 from lwm_models.agent.review_view import answered_manual, label_request_view
+from lwm_models.messenger.constants import ACTION_NAMES
 from lwm_nodes.reviewer import Reviewer, show
 
 if TYPE_CHECKING:
@@ -48,6 +53,65 @@ USAGE = (
 )
 NODE_WORDS = {"lwm_world_model": "world-model server"}  # how the terminal names who answered
 DECISIONS = {"a": "approve", "r": "reject", "x": "abort", "stop": "stop"}
+# A command typed in full means what its letter does.
+WORDS = {"approve": "a", "reject": "r", "abort": "x", "correct": "c", "teach": "i", "imitate": "i", "label": "l",
+         "manual": "m", "next": "n", "frames": "f", "show": "s", "answer": "q"}  # fmt: skip
+ACTION_WORDS = {name: k for k, name in enumerate(ACTION_NAMES)}
+
+
+def _number(word: str, what: str, example: str) -> int:
+    if not word.isdigit():
+        raise ValueError(f"{what} is a number, e.g. {example}; got {word!r}")
+    return int(word)
+
+
+def _pairs(words: list[str], what: str, example: str) -> list[tuple[int, int]]:
+    """STEP:ACTION (or STATE:ACTION) pairs; the action as a number or its name ("3:right")."""
+    out = []
+    for word in words:
+        left, colon, right = word.partition(":")
+        action = ACTION_WORDS.get(right.lower(), None)
+        if not colon or not left.isdigit() or (action is None and not right.isdigit()):
+            raise ValueError(
+                f"{what} is {example}: a number, a colon and an action (0 up, 1 down, 2 left, 3 right, 4 stay, "
+                f"or its name); got {word!r}"
+            )
+        out.append((int(left), action if action is not None else int(right)))
+    return out
+
+
+def parse_command(line: str) -> tuple[str, list]:
+    """A typed line as (command letter, its arguments); ValueError in plain words for a line that
+    is no command or whose arguments are not what the command takes."""
+    words = line.split()
+    if not words:
+        return "", []
+    head = WORDS.get(words[0].lower(), words[0].lower())
+    rest = words[1:]
+    if head in ("a", "r", "x", "stop", "m", "f", "restart"):
+        if rest:
+            raise ValueError(f"{words[0]} takes nothing after it; got {' '.join(rest)!r}")
+        return head, []
+    if head == "c":
+        if not rest:
+            raise ValueError("say which steps to correct, e.g. c 3:1 or c 3:right")
+        return head, _pairs(rest, "a correction", "STEP:ACTION, e.g. c 3:1 or c 3:right")
+    if head == "l":
+        if rest == ["-"]:
+            return head, []
+        if not rest:
+            raise ValueError("label states as l STATE:ACTION ..., or l - for none")
+        return head, _pairs(rest, "a label", "STATE:ACTION, e.g. l 0:3 or l 0:right")
+    if head in ("i", "n", "s", "q"):
+        if len(rest) > 1:
+            raise ValueError(f"{words[0]} takes one number at most; got {' '.join(rest)!r}")
+        if head in ("s", "q") and not rest:
+            raise ValueError("s takes a state number, e.g. s 2" if head == "s" else "q takes a choice, e.g. q 1")
+        if head == "q":
+            return head, rest  # the question's own check says which choices there are
+        example = {"i": "i 2 (rounds)", "n": "n 7 (a seed)", "s": "s 2 (a state)"}[head]
+        return head, [_number(rest[0], "it", example)] if rest else []
+    raise ValueError(USAGE)
 
 
 class TerminalReviewer(Reviewer):
@@ -105,35 +169,38 @@ class TerminalReviewer(Reviewer):
 
     def command(self, line: str) -> None:
         node = self.node
-        words = line.split()
-        if line == "m":
+        head, args = parse_command(line)
+        if head == "m":
+            if node.plan is not None:
+                shown = "\n".join(f"  {k}. {d}" for k, d in enumerate(node.plan["manual"], 1))
+                print(f"the manual under review (v{node.plan['manual_version']}):\n{shown}", flush=True)
             print("three descriptions, one per line:", flush=True)
             manual = [sys.stdin.readline().strip() for _ in range(3)]
             node.publish_manual({"descriptions": manual, "source": "human"})
-        elif words[:1] == ["q"]:
-            node.publish_manual(answered_manual(node.plan, words[1:]))
-        elif words[:1] == ["s"] and len(words) == 2:
-            self.show_state(int(words[1]))
-        elif line == "f" and node.plan is not None:
+        elif head == "q":
+            node.publish_manual(answered_manual(node.plan, args))
+        elif head == "s":
+            self.show_state(args[0])
+        elif head == "f":
+            if node.plan is None:
+                raise ValueError("there is no plan yet to show")
             show(node.plan, frames="all")
-        elif words[:1] == ["n"]:
-            print(node.next_episode(int(words[1]) if len(words) > 1 else None), flush=True)
-        elif line == "restart":
+        elif head == "n":
+            print(node.next_episode(args[0] if args else None), flush=True)
+        elif head == "restart":
             print(node.next_episode(restart=True), flush=True)
-        elif words[:1] == ["l"] and len(words) > 1:
-            pairs = [] if words[1:] == ["-"] else [w.split(":") for w in words[1:]]
-            node.send_labels([int(s) for s, _ in pairs], [int(a) for _, a in pairs])
-        elif not line or node.plan is None:
+        elif head == "l":
+            node.send_labels([s for s, _ in args], [a for _, a in args])
+        elif not head:
             return
-        elif line in DECISIONS:
-            self.decide(DECISIONS[line])
-        elif words[0] == "i":
-            self.decide("imitate", **({"rounds": int(words[1])} if len(words) > 1 else {}))
-        elif words[0] == "c":
-            fixes = [{"step": int(s), "action": int(a)} for s, a in (w.split(":") for w in words[1:])]
-            self.decide("corrections", corrections=fixes)
-        else:
-            print(USAGE, flush=True)
+        elif node.plan is None:
+            raise ValueError("there is no plan under review yet")
+        elif head in DECISIONS:
+            self.decide(DECISIONS[head])
+        elif head == "i":
+            self.decide("imitate", **({"rounds": args[0]} if args else {}))
+        elif head == "c":
+            self.decide("corrections", corrections=[{"step": s, "action": a} for s, a in args])
 
     def decide(self, decision: str, **fields) -> None:
         plan = self.node.plan
