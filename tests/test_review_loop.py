@@ -353,3 +353,19 @@ def test_an_answer_re_plans_and_teaches_again_only_when_it_changes_what_the_agen
     assert len(h.progress) > taught  # it learnt again under the corrected reading
     assert next(e for e in third["roles"] if e["identity"] == entity["identity"])["role"] == other
     h.loop.close()
+
+
+def test_an_older_manual_delivered_again_after_a_restart_is_no_new_version(encoder, tmp_path):
+    """Manual A (signed first), then B (signed later, another publisher): a restarted server that
+    gets A again (latched) knows it is older than the one in force, and B stays, as do its facts."""
+    state = tmp_path / "sim.json"
+    s = WorldModelServer(encoder=encoder, state_path=state)
+    s.take_env_manual(MANUAL, "newall-test:0:0")
+    a, b = list(reversed(MANUAL)), MANUAL[1:] + MANUAL[:1]
+    assert s.set_manual(a, "human", signed_at=100.0) == (2, True)
+    assert s.set_manual(b, "human", signed_at=200.0) == (3, True)
+    restarted = WorldModelServer(encoder=encoder, state_path=state)
+    assert restarted.older(100.0) == 3 and restarted.older(300.0) is None
+    assert (restarted.manual_version, restarted.manual) == (3, b)
+    restarted.take_env_manual(MANUAL, "newall-test:5:0")  # a new game's own manual keeps the floor
+    assert restarted.older(100.0) == 4

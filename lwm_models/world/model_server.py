@@ -70,13 +70,16 @@ class ManualState:
     source: str = ""
     game: str = ""  # split:index of the last environment manual
     facts: list[dict] = field(default_factory=list)  # what the person stated (answers), held for sure
+    # When the person signed the newest manual taken (Unix time; 0: none yet): a manual signed
+    # earlier is an old one delivered again (a latched topic after a restart).
+    signed_at: float = 0.0
     batch: ManualBatch | None = None
     cond: Conditioning | None = None  # the model's conditioning on `batch` as read on a board
     cond_words: tuple = ()  # the words `cond` read (a grounding model's depend on the board)
 
     def to_json(self) -> dict:
         return {"manual": self.manual, "version": self.version, "source": self.source, "game": self.game,
-                "facts": self.facts}  # fmt: skip
+                "facts": self.facts, "signed_at": self.signed_at}  # fmt: skip
 
 
 class WorldModelServer:
@@ -135,8 +138,20 @@ class WorldModelServer:
     _batch = property(lambda self: self.state().batch)
 
     # ------------------------------------------------------------------ manual
+    def older(self, signed_at: float | None, agent: str | None = None) -> int | None:
+        """The version of an agent's manual in force when a manual signed at `signed_at` was signed
+        before it (an old manual delivered again), else None."""
+        with self.lock:
+            state = self.state(agent)
+            return state.version if signed_at is not None and signed_at < state.signed_at else None
+
     def set_manual(
-        self, descriptions: list[str], source: str = "", agent: str | None = None, facts: Sequence[dict] = ()
+        self,
+        descriptions: list[str],
+        source: str = "",
+        agent: str | None = None,
+        facts: Sequence[dict] = (),
+        signed_at: float = 0.0,
     ) -> tuple[int, bool]:
         """Replace an agent's manual, with the facts a person stated of its board's entities
         (answers to the reading's questions). Returns (version, changed): the same text and facts
@@ -154,11 +169,14 @@ class WorldModelServer:
                 batch = self.model.read_manual(descriptions, self.encoder)
             batch = replace(batch, facts=tuple(stated))
             self._assign(state, list(descriptions), batch, *self._read_back(descriptions, batch))
-            state.source, state.facts = source, stated
+            # The newest signature taken stays the floor, through the environment's unsigned manuals too.
+            state.source, state.facts, state.signed_at = source, stated, max(state.signed_at, float(signed_at))
             self._save()
             return state.version, True
 
-    def set_fleet_manual(self, descriptions: list[str], source: str = "") -> dict[str, tuple[int, bool]]:
+    def set_fleet_manual(
+        self, descriptions: list[str], source: str = "", signed_at: float = 0.0
+    ) -> dict[str, tuple[int, bool]]:
         """Give every agent the same manual (read once): each agent's (version, changed)."""
         with self.lock:
             batch = self.model.read_manual(descriptions, self.encoder)  # raises before anything changes
@@ -169,7 +187,7 @@ class WorldModelServer:
                     out[name] = (state.version, False)
                     continue
                 self._assign(state, list(descriptions), batch, *reading)
-                state.source, state.facts = source, []
+                state.source, state.facts, state.signed_at = source, [], max(state.signed_at, float(signed_at))
                 out[name] = (state.version, True)
             self._save()
             return out
@@ -319,6 +337,7 @@ class WorldModelServer:
                     state.reading, state.unsure = self._read_back(state.manual, state.batch)
                 state.version = int(entry.get("version", 0))
                 state.source = str(entry.get("source", ""))
+                state.signed_at = float(entry.get("signed_at", 0.0))
                 state.game = str(entry.get("game", ""))
         except (OSError, ValueError, TypeError, KeyError, AttributeError) as exc:
             raise LwmError(f"cannot read the world-model server state {self.state_path}: {exc}") from None

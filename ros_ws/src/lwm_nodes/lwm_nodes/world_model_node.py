@@ -92,10 +92,17 @@ class SimulatorNode(JsonNode):
             if len(self.sim.agents) > 1:
                 raise LwmError("an answer (facts) is about one agent's board: send it on that agent's feedback/manual")
             agent = self.sim.default_agent
+        signed_at = float(payload.get("signed_at", 0.0))
+        # A latched manual delivered again to a restarted server is no news: one signed before the
+        # manual in force (another person's later manual, a `lwm ros pub`) must not replace it.
+        stale = [a for a in ([agent] if agent is not None else self.sim.agents) if self.sim.older(signed_at, a)]
+        if stale:
+            version = self.sim.state(stale[0]).version
+            return f"a manual signed before the one in force (version {version}): nothing changes"
         if agent is None:
-            outcome = self.sim.set_fleet_manual(payload["descriptions"], source)
+            outcome = self.sim.set_fleet_manual(payload["descriptions"], source, signed_at)
         else:
-            outcome = {agent: self.sim.set_manual(payload["descriptions"], source, agent, facts)}
+            outcome = {agent: self.sim.set_manual(payload["descriptions"], source, agent, facts, signed_at)}
         changed = [a for a, (_, fresh) in outcome.items() if fresh]
         if not changed:
             versions = sorted({v for v, _ in outcome.values()})
