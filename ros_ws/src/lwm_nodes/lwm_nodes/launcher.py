@@ -410,8 +410,12 @@ def main(argv: list[str] | None = None) -> int:
         help="continue an earlier run: its reviews (a finished one is shown again, not redone), the manual the "
         "world-model server was given and the learnt policy (default RUN_DIR: the newest run, logs/latest)",
     )
-    parser.add_argument("--ready-timeout", type=float, default=120.0)
-    parser.add_argument("--max-restarts", type=int, default=3)
+    parser.add_argument(
+        "--ready-timeout", type=float, default=120.0, help="seconds each node may take to say it is ready (default 120)"
+    )
+    parser.add_argument(
+        "--max-restarts", type=int, default=3, help="times a node that dies is started again before the run ends"
+    )
     parser.add_argument("--quiet", action="store_true", help="do not echo the nodes' output")
     parser.add_argument("--run-for", type=float, default=None, help="stop after this many seconds (demos, tests)")
     parser.add_argument("--policy", default=None, help="policy directory for the planner (default: shipped, if any)")

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import signal
 import sys
 import threading
@@ -72,8 +73,10 @@ def cmd_graph(node: Node, what: str, settle: float) -> int:
         rows = [r for r in rows if not r.endswith(node.get_name())]
     elif what == "topics":
         rows = [f"{name} [{', '.join(types)}]" for name, types in sorted(node.get_topic_names_and_types())]
-    else:
-        rows = [f"{name} [{', '.join(types)}]" for name, types in sorted(node.get_service_names_and_types())]
+    else:  # not this tool's own node's services
+        own = f"/{node.get_name()}/"
+        services = sorted(node.get_service_names_and_types())
+        rows = [f"{name} [{', '.join(types)}]" for name, types in services if not name.startswith(own)]
     print("\n".join(rows))
     return 0
 
@@ -92,6 +95,7 @@ def answered_by(topic: str) -> str | None:
     return next((who for end, who in ACKED_TOPICS.items() if topic == f"/{end}" or topic.endswith(f"/{end}")), None)
 
 
+DISCOVERY_S = 3.0  # how long `call` looks for the service before it says nobody serves it
 NO_ANSWER = 3  # exit status when no node answered in time (1: refused, 2: bad usage or input)
 
 
@@ -137,6 +141,10 @@ def cmd_pub(node: Node, args) -> int:
     deadline = time.monotonic() + args.wait
     while pub.get_subscription_count() < args.wait_matching_subscriptions and time.monotonic() < deadline:
         time.sleep(0.02)
+    if answerer and pub.get_subscription_count() == 0:
+        # Nobody to take it: say so now rather than after waiting for an answer that cannot come.
+        print(f"lwm ros: nothing subscribes to {args.topic} ({answerer} is not running?): not sent", file=sys.stderr)
+        return NO_ANSWER
     pub.publish(String(data=text))
     # Reliable delivery needs the publisher alive until every reader has acknowledged the sample.
     pub.wait_for_all_acked(Duration(seconds=max(args.wait, 0.5)))
@@ -233,10 +241,17 @@ def cmd_echo(node: Node, args) -> int:
     done = threading.Event()
 
     def callback(msg: String) -> None:
-        print(msg.data, flush=True)
+        try:
+            print(msg.data, flush=True)
+        except BrokenPipeError:  # the reader went away (`| head`): nothing more to echo to
+            closed.set()
+            done.set()
+            return
         got.append(msg.data)
         if args.count and len(got) >= args.count:
             done.set()
+
+    closed = threading.Event()
 
     qos = LATCHED if args.latched else EVENTS
     if args.count > qos.depth:
@@ -252,6 +267,10 @@ def cmd_echo(node: Node, args) -> int:
             time.sleep(0.02)
         print(f"# listening to {sub.get_publisher_count()} publisher(s) of {args.topic}", file=sys.stderr, flush=True)
     done.wait(args.timeout if args.timeout > 0 else None)
+    if closed.is_set():
+        # Python would flush stdout again at exit and fail on the closed pipe.
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
     return 0 if got or not args.count else 1
 
 
@@ -259,8 +278,9 @@ def cmd_call(node: Node, args) -> int:
     from lwm_interfaces.srv import Json
 
     client = node.create_client(Json, args.service)
-    if not client.wait_for_service(timeout_sec=args.timeout):
-        print(f"lwm ros: error: service {args.service} is not available", file=sys.stderr)
+    # Discovery finds a running server in well under a second: say at once when there is none.
+    if not client.wait_for_service(timeout_sec=min(args.timeout, DISCOVERY_S)):
+        print(f"lwm ros: error: nothing serves {args.service} (is the system running?)", file=sys.stderr)
         return 2
     request = Json.Request(request=_payload(args.payload, args.raw))
     response = client.call(request, timeout_sec=args.timeout)
