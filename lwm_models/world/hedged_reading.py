@@ -39,6 +39,11 @@ the three movements (NewAll-dev 0.338, worse than reading nothing); `practise_he
 --hedge-practice`) fine-tunes the decoder, the reader frozen, on such means (`practice_codes`;
 checkpoint `emma-lwm-practised`), and training always uses `hedge`.
 
+A model shipped with a reading calibration (world/manual_reading.py) imagines differently: read on
+its board, the manual is one calibrated reading, and imagination conditions each description on
+its believed triple's anchor in proportion to that reading (`on_board`, `_configured`); the
+teacher-forced mixture above is unchanged.
+
 The words travel with the manual as `ManualBatch.routed`: one int per description (`words_code`),
 so datasets and the world-model server fill it as they fill GPTHard's routing.
 

@@ -4,7 +4,7 @@ A plan is imagined before the agent makes a move, so it rests on what the manual
 else. This module turns a manual and its board into one reading: for each board entity, how
 probable each movement and each role is, and which description is about it. Everything a person
 sees before the agent acts (the read-back, the roles the agent acts on, the plan imagined under
-them) comes from this one reading (docs/language.md#the-reading).
+them) comes from this one reading (docs/reading.md).
 
 How a description is read. Three readers give evidence:
 - the words: the offline keyword parser (`text/parser.py`): the entity its name keywords name (or,
@@ -28,9 +28,11 @@ text, and stray text about no entity of the game.
 How a manual is read. A manual describes the three board entities, each once, and gives each role
 to exactly one of them. The reading is exact over the 6 ways the descriptions map onto the board
 entities and the 6 ways the roles are given, each weighed by the product of its descriptions'
-probabilities raised to a temperature (fitted with the rates, on whole manuals, so that the stated
-probabilities match how often they come true). Movements ride on the mapping. The same words give
-the same reading whatever their order and whatever the seed: nothing here is sampled.
+probabilities raised to a temperature (fitted on whole manuals of hand-written text, so that the
+stated probabilities match how often they come true). Movements ride on the mapping, with a
+temperature of their own. The same words give the same reading whatever their order and whatever
+the seed: nothing here is sampled. A world model imagines under the reading by conditioning each
+description on its believed triple's anchor (`fit_anchors`, `HedgedReading._configured`).
 
 Facts a person states (an answer to a question, `Question`) hold for sure: the reading keeps only
 what agrees with them, so one answer can settle the other entities' roles too.
