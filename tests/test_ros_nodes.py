@@ -393,12 +393,32 @@ def test_the_planner_process_reads_no_world_model_weights(system):
     assert not any(f"checkpoints/{m.directory}/" in planner for m in WORLD_MODELS)
 
 
-def test_a_killed_node_is_restarted(system):
+def test_a_killed_node_is_restarted_and_the_person_is_told(system):
+    """kill -9 of the world-model server: the launcher starts it again, it serves, and a person at
+    the terminal hears that it stopped and started again, and what it says it serves now."""
     log = system["tmp"] / "logs" / "world_model.log"
-    os.kill(node_pid("lwm_nodes.world_model_node", system["env"]["ROS_DOMAIN_ID"]), signal.SIGKILL)
-    assert wait_for(lambda: Path(log).read_text().count("READY") >= 2, timeout=60)
-    ok = call(system, "/lwm/imagine", {"version": 1, "observation": OBS, "manual": MANUAL, "n": 1, "max_steps": 2})
-    assert ok["ok"]
+    terminal = system["tmp"] / "terminal-restart.log"
+    keys = str(system["tmp"] / "logs" / "reviewer_keys.json")
+    with open(terminal, "w") as out:
+        human = subprocess.Popen(
+            [sys.executable, "-m", "lwm_nodes.human_node", "--ros-args", "-p", f"keys_file:={keys}"],
+            stdin=subprocess.PIPE, stdout=out, stderr=subprocess.STDOUT, env={**system["env"], "PYTHONUNBUFFERED": "1"},
+            text=True,
+        )  # fmt: skip
+        try:
+            assert wait_for(lambda: "READY" in terminal.read_text(), timeout=60)
+            time.sleep(2)  # it has heard the world-model server's diagnostics at least once
+            os.kill(node_pid("lwm_nodes.world_model_node", system["env"]["ROS_DOMAIN_ID"]), signal.SIGKILL)
+            assert wait_for(lambda: Path(log).read_text().count("READY") >= 2, timeout=60)
+            ok = call(
+                system, "/lwm/imagine", {"version": 1, "observation": OBS, "manual": MANUAL, "n": 1, "max_steps": 2}
+            )
+            assert ok["ok"]
+            said = "NOTICE the world-model server stopped and started again; it says: serving"
+            assert wait_for(lambda: said in terminal.read_text(), timeout=30), terminal.read_text()[-2000:]
+        finally:
+            human.send_signal(signal.SIGINT)
+            human.wait(timeout=30)
 
 
 def test_only_a_trusted_reviewer_can_approve(system, tmp_path):

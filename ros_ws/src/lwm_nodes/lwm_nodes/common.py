@@ -72,6 +72,8 @@ class JsonNode(Node):
 
     def __init__(self, name: str) -> None:
         super().__init__(name)
+        # On /diagnostics as "started": a value that changes tells the others the node came back.
+        self.started = round(time.time(), 3)
         self._errors = self.create_publisher(String, ERRORS_TOPIC, EVENTS)
         self._acks = None  # created by the first subscription that answers its senders
         self.error_count = 0
@@ -113,7 +115,7 @@ class JsonNode(Node):
             level = DiagnosticStatus.OK
         except Exception as exc:  # the report must not take the node down either
             message, values, level = f"health unknown: {exc}", {}, DiagnosticStatus.ERROR
-        values = {**values, "errors reported": self.error_count}
+        values = {**values, "errors reported": self.error_count, "started": self.started}
         if self._last_error is not None and time.monotonic() - self._last_error[0] < RECENT_ERROR_S:
             level = max(level, DiagnosticStatus.WARN)
             message = f"{message}; last error: {self._last_error[1]}"

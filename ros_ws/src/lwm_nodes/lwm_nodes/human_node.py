@@ -32,11 +32,15 @@ from lwm_models.agent.review import check_labels
 from lwm_models.data.episode import Episode
 from lwm_models.data.splits import load_split
 from lwm_models.errors import LwmError
-from lwm_nodes.common import FEEDBACK, LATCHED, Answers, JsonNode, json_caller, run
+from lwm_nodes.common import DIAGNOSTICS_TOPIC, EVENTS, FEEDBACK, LATCHED, Answers, JsonNode, json_caller, run
 from lwm_nodes.reviewer import Reviewer
 from lwm_nodes.trust import Signer
 
 HISTORY_WAIT_S = 5.0  # how long a history request waits for the planner's /planner/history
+
+
+# How a person hears of the other nodes (by node name).
+NODE_NAMES = {"lwm_world_model": "world-model server", "planner": "planner", "messenger_env": "environment"}
 
 
 class HumanNode(JsonNode):
@@ -96,7 +100,24 @@ class HumanNode(JsonNode):
         self.json_subscription("planner/progress", "progress", self.reviewer.on_progress, LATCHED)
         if self.reviewer.shows_status:
             self.json_subscription("lwm/status", "status", self.reviewer.on_status, LATCHED)
+        self.started_at: dict[str, str] = {}  # node -> when it said it started (/diagnostics)
+        from diagnostic_msgs.msg import DiagnosticArray
+
+        self.create_subscription(DiagnosticArray, DIAGNOSTICS_TOPIC, self.on_diagnostics, EVENTS)
         self.reviewer.start()
+
+    def on_diagnostics(self, array) -> None:
+        """A node whose start time changed died and came back: the person hears it, and what the
+        node says it serves now (its health line), since what they see may have changed with it."""
+        for status in array.status:
+            started = next((kv.value for kv in status.values if kv.key == "started"), None)
+            if started is None or status.name == self.get_fully_qualified_name():
+                continue
+            before = self.started_at.get(status.name)
+            self.started_at[status.name] = started
+            if before is not None and before != started:
+                who = NODE_NAMES.get(status.name.rsplit("/", 1)[-1], status.name)
+                self.reviewer.on_notice(f"the {who} stopped and started again; it says: {status.message}")
 
     # ------------------------------------------------------------------ what this node sends
     def on_answer(self, ack: dict, sent: dict) -> None:

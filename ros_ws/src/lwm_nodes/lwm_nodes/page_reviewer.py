@@ -71,6 +71,10 @@ class PageReviewer(Reviewer):
     def on_status(self, status: dict) -> None:
         self.page.push("status", status)
 
+    def on_notice(self, text: str) -> None:
+        super().on_notice(text)
+        self.page.push("notice", {"text": text, "time": time.time()})
+
     def on_report(self, report: dict) -> None:
         self.page.push("report", report_view(report))
 

@@ -58,7 +58,7 @@ class ReviewPage:
     body of a POST and return the receiving node's words (shown beside the control), or raise to
     refuse it (the page shows the reason); history(review_id or None) answers GET /api/history."""
 
-    KINDS = ("plan", "label_request", "report", "status", "reviewer", "progress")
+    KINDS = ("plan", "label_request", "report", "status", "reviewer", "progress", "notice")
     # Sent to a (re)connecting page even when there is none: the page may still show a request that
     # ended while it was away (the node restarted, the planner moved on), and would keep asking the
     # person for labels nobody takes. A plan or report the node has not (yet) had is left as shown.

@@ -50,6 +50,10 @@ class Reviewer:
     def on_status(self, status: dict) -> None:
         """The world-model server's status (when `shows_status`)."""
 
+    def on_notice(self, text: str) -> None:
+        """Something the person should know that is no answer to them (a node died and came back)."""
+        print(f"NOTICE {text}", flush=True)
+
     def close(self) -> None:
         """The node shuts down."""
 

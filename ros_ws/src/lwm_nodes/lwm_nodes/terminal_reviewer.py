@@ -142,6 +142,11 @@ class TerminalReviewer(Reviewer):
         for k in range(n):
             self.show_state(k)
 
+    def on_notice(self, text: str) -> None:
+        print(f"NOTICE {text}", flush=True)
+        if self.node.plan is not None:
+            print(PROMPT, flush=True)
+
     def on_ack(self, ack: dict, sent: dict) -> None:
         who = NODE_WORDS.get(ack["node"], ack["node"].removeprefix("lwm_"))
         print(f"{who}: {ack['reason']}" if ack["ok"] else f"REFUSED by the {who}: {ack['reason']}", flush=True)
