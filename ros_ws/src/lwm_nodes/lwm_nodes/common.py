@@ -200,6 +200,9 @@ class JsonNode(Node):
         )
 
 
+ANSWER_WINDOW_S = 30.0  # an answer not come in this long is taken as never coming (a node restarted)
+
+
 class Answers:
     """What a node sent, by msg_id, until the receiving node answers it on /lwm/acks: a sender
     (the human node, the fleet page) waits for the answer to show the person, in words, whether
@@ -219,7 +222,9 @@ class Answers:
         def send(payload: dict) -> str:
             msg_id = f"{self.node.get_name()}-{uuid.uuid4().hex[:12]}"
             with self._lock:
-                self._sent[msg_id] = {"event": threading.Event(), "ack": None, "payload": payload}
+                self._sent[msg_id] = {
+                    "event": threading.Event(), "ack": None, "payload": payload, "at": time.monotonic()
+                }  # fmt: skip
             publish({**payload, "msg_id": msg_id})
             return msg_id
 
@@ -248,10 +253,14 @@ class Answers:
             return None
         return entry["ack"]
 
-    def awaited(self) -> int:
-        """Messages sent that no node has answered yet."""
+    def awaited(self, within: float = ANSWER_WINDOW_S) -> tuple[int, int]:
+        """Messages sent that no node has answered yet: (sent in the last `within` seconds, whose
+        answer may still come; sent before, whose answer never came)."""
+        now = time.monotonic()
         with self._lock:
-            return sum(entry["ack"] is None for entry in self._sent.values())
+            open_ = [entry["at"] for entry in self._sent.values() if entry["ack"] is None]
+        recent = sum(now - at <= within for at in open_)
+        return recent, len(open_) - recent
 
 
 def agent_topic(agent: str, name: str) -> str:

@@ -185,6 +185,15 @@ class HumanNode(JsonNode):
         self.reviewer.on_labels_sent()
         return msg_id
 
+    @property
+    def label_request_open(self) -> bool:
+        """The planner still waits for labels of the request shown (not answered, not expired, not
+        stopped), as the planner's own diagnostics say it."""
+        request = self.request
+        if request is None or time.monotonic() > self.request_deadline:
+            return False
+        return (request["review_id"], request["request_id"]) not in self.answered
+
     def close_label_request(self) -> None:
         """The planner waits for no more labels (the reviewer stopped the teaching)."""
         with self.labels_lock:
@@ -200,13 +209,14 @@ class HumanNode(JsonNode):
         return answer
 
     def health(self) -> tuple[str, dict[str, object]]:
-        waiting = self.answers.awaited()
+        waiting, lost = self.answers.awaited()
         plan = self.plan
         values = {
             "reviewer": self.signer.reviewer or "nobody yet",
             "episode": self.episode or "none yet",
-            "label request open": self.request is not None,
+            "label request open": self.label_request_open,
             "answers awaited": waiting,
+            "answers that never came": lost,
         }
         if plan is None:
             return "waiting for a plan", values
