@@ -15,6 +15,7 @@ from __future__ import annotations
 import argparse
 import json
 import re
+import statistics
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -616,8 +617,9 @@ def review_loop_reading(base: str) -> list[str]:
 
     lines = [
         "| the game's manual | games | real return, mean (95% t interval) | won / died / time limit / aborted "
-        "| first plan's roles right | questions answered | approved plans that died | file |",
-        "|---|---|---|---|---|---|---|---|",
+        "| first plan's roles right | questions answered | an answer to the revised plan, p50 (max) "
+        "| approved plans that died | file |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
     for name, label in REVIEW_READING:
         path = f"review-loop/{name}.jsonl"
@@ -630,9 +632,11 @@ def review_loop_reading(base: str) -> list[str]:
         right = sum(g["first_roles_right"] for g in games)
         asked = sum(g["questions_answered"] for g in games)
         died = sum(g["approved_plan_died"] for g in games)
+        waits = sorted(s for g in games for kind, s in g["revise"] if kind == "answer")
+        waited = f"{statistics.median(waits):.1f} s ({waits[-1]:.1f} s)" if waits else "-"
         lines.append(
             f"| {label} | {len(games)} | {mean:+.2f} ({low:+.2f}, {high:+.2f}) | {counts} | {right} of {len(games)} | "
-            f"{asked} | {died} | {_link(path, base)} |"
+            f"{asked} | {waited} | {died} | {_link(path, base)} |"
         )
     return lines
 

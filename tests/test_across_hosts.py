@@ -76,7 +76,7 @@ def test_the_review_loop_completes_across_two_hosts(two_hosts, tmp_path):
         call = ["ip", "netns", "exec", b, PYTHON, "-m", "lwm_models.cli.main", "ros", "call", "/lwm/imagine", request]
         local = subprocess.run([*call, "--timeout", "6"], env={**env, "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"},
                                capture_output=True, text=True, cwd=ROOT)  # fmt: skip
-        assert local.returncode != 0 and "not available" in local.stderr, local.stderr
+        assert local.returncode != 0 and "nothing serves /lwm/imagine" in local.stderr, local.stderr
         remote = subprocess.run([*call, "--timeout", "30"], env=env, capture_output=True, text=True, cwd=ROOT)
         assert remote.returncode == 0 and json.loads(remote.stdout.strip().splitlines()[-1])["ok"], remote
         rest = launch(

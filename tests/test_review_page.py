@@ -586,13 +586,16 @@ def test_the_page_survives_node_restarts(page_system, browser):
     assert boxes() == typed
     browser.find_element("id", "send-manual").click()  # what was typed before the first restart
     wait.until(lambda _: "manual v2" in text("plan-title"))
-    assert "airplane: enemy, chaser" in text("legend")
+    assert "airplane: enemy (100% sure), comes toward you (" in text("legend")
 
     # The planner dies while the plan is under review: the page still shows it, and an approval
     # sent meanwhile is kept for the restarted planner, which resumes from the ledger and executes.
     title = text("plan-title")
     restart("lwm_nodes.planner_node")
     assert text("plan-title") == title and text("status").startswith("live ·")
+    # The person is told the planner died and came back, and what it says it does now.
+    wait.until(lambda _: "the planner stopped and started again; it says: " in text("notice"))
+    shoot(browser, tmp_path, "review_page_planner_restarted.png")
     approve(browser)
     # The page says what became of it: kept for the planner, taken, or not answered yet.
     answers = ("kept until review", "approved: the agent now acts", "has not answered in")

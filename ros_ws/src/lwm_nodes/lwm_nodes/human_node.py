@@ -40,6 +40,7 @@ HISTORY_WAIT_S = 5.0  # how long a history request waits for the planner's /plan
 
 
 # How a person hears of the other nodes (by node name).
+RESUME_S = 3.0  # how long a restarted node is given to resume before the person hears what it does
 NODE_NAMES = {"lwm_world_model": "world-model server", "planner": "planner", "messenger_env": "environment"}
 
 
@@ -101,6 +102,7 @@ class HumanNode(JsonNode):
         if self.reviewer.shows_status:
             self.json_subscription("lwm/status", "status", self.reviewer.on_status, LATCHED)
         self.started_at: dict[str, str] = {}  # node -> when it said it started (/diagnostics)
+        self.came_back: dict[str, float] = {}  # node -> when this node saw it start again (monotonic)
         from diagnostic_msgs.msg import DiagnosticArray
 
         self.create_subscription(DiagnosticArray, DIAGNOSTICS_TOPIC, self.on_diagnostics, EVENTS)
@@ -108,7 +110,8 @@ class HumanNode(JsonNode):
 
     def on_diagnostics(self, array) -> None:
         """A node whose start time changed died and came back: the person hears it, and what the
-        node says it serves now (its health line), since what they see may have changed with it."""
+        node says it does now (its health line, once it has had RESUME_S to resume its work), since
+        what they see may have changed with it."""
         for status in array.status:
             started = next((kv.value for kv in status.values if kv.key == "started"), None)
             if started is None or status.name == self.get_fully_qualified_name():
@@ -116,6 +119,10 @@ class HumanNode(JsonNode):
             before = self.started_at.get(status.name)
             self.started_at[status.name] = started
             if before is not None and before != started:
+                self.came_back[status.name] = time.monotonic()
+            seen = self.came_back.get(status.name)
+            if seen is not None and time.monotonic() - seen >= RESUME_S:
+                del self.came_back[status.name]
                 who = NODE_NAMES.get(status.name.rsplit("/", 1)[-1], status.name)
                 self.reviewer.on_notice(f"the {who} stopped and started again; it says: {status.message}")
 
