@@ -68,10 +68,24 @@ def run_game(index: int, seed: int, args, work: Path) -> dict:
         "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST",
     }
     began = time.monotonic()
-    proc = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=args.timeout)
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
+    try:
+        out, _ = proc.communicate(timeout=args.timeout)
+    except subprocess.TimeoutExpired:
+        # SIGTERM: the launcher stops its nodes (each in a session of its own) before it exits; they
+        # would otherwise go on answering the next game's.
+        proc.terminate()
+        try:
+            proc.communicate(timeout=60)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.communicate()
+        raise SystemExit(
+            f"game {index}: no report within {args.timeout:.0f} s; its launcher and nodes were stopped"
+        ) from None
     wall = time.monotonic() - began
     if proc.returncode != 0:
-        raise SystemExit(f"game {index}: launcher exited {proc.returncode}:\n{proc.stdout[-2000:]}")
+        raise SystemExit(f"game {index}: launcher exited {proc.returncode}:\n{out[-2000:]}")
     records = Ledger(ledger).history()
     report = next(r["payload"] for r in records if r["kind"] == "report")
     plans = {r["payload"]["plan_id"]: r["payload"] for r in records if r["kind"] == "plan"}
