@@ -4,6 +4,7 @@ Fast DDS on localhost."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import signal
@@ -186,6 +187,36 @@ def latched(system, topic: str) -> dict:
     proc = lwm_ros(system, "echo", topic, "--latched", "--count", "1", "--timeout", "20")
     assert proc.returncode == 0, f"nothing latched on {topic}"
     return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+@contextlib.contextmanager
+def terminal(system, name: str):
+    """A person at the terminal review: a human node reading what the test types. Yields
+    (type_line, said, log path); said(words) waits until the terminal printed them. The node must
+    end cleanly on SIGINT."""
+    log_path = system["tmp"] / f"{name}.log"
+    keys = str(system["tmp"] / "logs" / "reviewer_keys.json")
+    with open(log_path, "w") as log:
+        human = subprocess.Popen(
+            [sys.executable, "-m", "lwm_nodes.human_node", "--ros-args", "-p", f"keys_file:={keys}"],
+            stdin=subprocess.PIPE, stdout=log, stderr=subprocess.STDOUT, env={**system["env"], "PYTHONUNBUFFERED": "1"},
+            text=True,
+        )  # fmt: skip
+
+        def type_line(line: str) -> None:
+            human.stdin.write(line + "\n")
+            human.stdin.flush()
+
+        def said(words: str, timeout: float = 60) -> bool:
+            return bool(wait_for(lambda: words in log_path.read_text(), timeout=timeout))
+
+        try:
+            assert said("READY"), log_path.read_text()[-2000:]
+            yield type_line, said, log_path
+        finally:
+            human.send_signal(signal.SIGINT)
+            human.wait(timeout=30)
+    assert human.returncode == 0
 
 
 def start_human_node(system) -> subprocess.Popen:
@@ -402,28 +433,14 @@ def test_a_killed_node_is_restarted_and_the_person_is_told(system):
     """kill -9 of the world-model server: the launcher starts it again, it serves, and a person at
     the terminal hears that it stopped and started again, and what it says it serves now."""
     log = system["tmp"] / "logs" / "world_model.log"
-    terminal = system["tmp"] / "terminal-restart.log"
-    keys = str(system["tmp"] / "logs" / "reviewer_keys.json")
-    with open(terminal, "w") as out:
-        human = subprocess.Popen(
-            [sys.executable, "-m", "lwm_nodes.human_node", "--ros-args", "-p", f"keys_file:={keys}"],
-            stdin=subprocess.PIPE, stdout=out, stderr=subprocess.STDOUT, env={**system["env"], "PYTHONUNBUFFERED": "1"},
-            text=True,
-        )  # fmt: skip
-        try:
-            assert wait_for(lambda: "READY" in terminal.read_text(), timeout=60)
-            time.sleep(2)  # it has heard the world-model server's diagnostics at least once
-            os.kill(node_pid("lwm_nodes.world_model_node", system["env"]["ROS_DOMAIN_ID"]), signal.SIGKILL)
-            assert wait_for(lambda: Path(log).read_text().count("READY") >= 2, timeout=60)
-            ok = call(
-                system, "/lwm/imagine", {"version": 1, "observation": OBS, "manual": MANUAL, "n": 1, "max_steps": 2}
-            )
-            assert ok["ok"]
-            said = "NOTICE the world-model server stopped and started again; it says: serving"
-            assert wait_for(lambda: said in terminal.read_text(), timeout=30), terminal.read_text()[-2000:]
-        finally:
-            human.send_signal(signal.SIGINT)
-            human.wait(timeout=30)
+    with terminal(system, "terminal-restart") as (_, said, log_path):
+        time.sleep(2)  # it has heard the world-model server's diagnostics at least once
+        os.kill(node_pid("lwm_nodes.world_model_node", system["env"]["ROS_DOMAIN_ID"]), signal.SIGKILL)
+        assert wait_for(lambda: Path(log).read_text().count("READY") >= 2, timeout=60)
+        ok = call(system, "/lwm/imagine", {"version": 1, "observation": OBS, "manual": MANUAL, "n": 1, "max_steps": 2})
+        assert ok["ok"]
+        notice = "NOTICE the world-model server stopped and started again; it says: serving"
+        assert said(notice, timeout=30), log_path.read_text()[-2000:]
 
 
 def test_only_a_trusted_reviewer_can_approve(system, tmp_path):
@@ -487,27 +504,7 @@ def test_only_a_trusted_reviewer_can_approve(system, tmp_path):
 def test_the_terminal_review_shows_answers_refusals_and_takes_a_correction(system):
     """A person at the terminal: starts an episode (n SEED), sees a compact plan with a legend,
     is told why a correction is refused, and a correction of step 1 makes the next plan take it."""
-    log_path = system["tmp"] / "terminal.log"
-    log = open(log_path, "w")
-    keys = str(system["tmp"] / "logs" / "reviewer_keys.json")
-    human = subprocess.Popen(
-        [sys.executable, "-m", "lwm_nodes.human_node", "--ros-args", "-p", f"keys_file:={keys}"],
-        stdin=subprocess.PIPE,
-        stdout=log,
-        stderr=subprocess.STDOUT,
-        env={**system["env"], "PYTHONUNBUFFERED": "1"},
-        text=True,
-    )
-
-    def type_line(line: str) -> None:
-        human.stdin.write(line + "\n")
-        human.stdin.flush()
-
-    def said(words: str, timeout: float = 60) -> bool:
-        return bool(wait_for(lambda: words in log_path.read_text(), timeout=timeout))
-
-    try:
-        assert said("READY")
+    with terminal(system, "terminal") as (type_line, said, log_path):
         type_line("n 21")
         assert said("episode newall-test:0:21 started"), log_path.read_text()[-2000:]
         assert said("=== plan ") and said("of review newall-test:0:21"), log_path.read_text()[-2000:]
@@ -527,11 +524,6 @@ def test_the_terminal_review_shows_answers_refusals_and_takes_a_correction(syste
         again = wait_for(lambda: (p := latched(system, "/planner/plan"))["review_id"].endswith(":21#2") and p)
         assert again and again["plan_id"] == 1 and again["observations"][0] == plan["observations"][0]
         assert again["actions"][0] == wanted  # the correction holds in the same state
-    finally:
-        human.send_signal(signal.SIGINT)
-        human.wait(timeout=30)
-        log.close()
-    assert human.returncode == 0
 
 
 def test_a_stop_ends_the_teaching_within_2_s_and_the_ledger_stays_consistent(system):
@@ -569,27 +561,7 @@ def test_the_terminal_asks_about_an_unclear_manual_and_takes_the_answer(system):
     """A manual that leaves the robot's movement unclear: the terminal shows the agent's question,
     refuses a choice that is not offered in plain words, and `q N` sends the answer, which the
     world-model server holds and the next plan rests on."""
-    log_path = system["tmp"] / "terminal-question.log"
-    log = open(log_path, "w")
-    keys = str(system["tmp"] / "logs" / "reviewer_keys.json")
-    human = subprocess.Popen(
-        [sys.executable, "-m", "lwm_nodes.human_node", "--ros-args", "-p", f"keys_file:={keys}"],
-        stdin=subprocess.PIPE,
-        stdout=log,
-        stderr=subprocess.STDOUT,
-        env={**system["env"], "PYTHONUNBUFFERED": "1"},
-        text=True,
-    )
-
-    def type_line(line: str) -> None:
-        human.stdin.write(line + "\n")
-        human.stdin.flush()
-
-    def said(words: str, timeout: float = 60) -> bool:
-        return bool(wait_for(lambda: words in log_path.read_text(), timeout=timeout))
-
-    try:
-        assert said("READY")
+    with terminal(system, "terminal-question") as (type_line, said, log_path):
         before = latched(system, "/planner/plan")["plan_id"]
         type_line("m")
         for line in ("the plane chases you and it is deadly", "the ball has the secret message and runs away from you",
@@ -613,8 +585,3 @@ def test_the_terminal_asks_about_an_unclear_manual_and_takes_the_answer(system):
         robot = next(e for e in revised["roles"] if e["identity"] == "robot")
         assert robot["movement"] == "stays put" and robot["movement_p"] == 1.0
         assert status(system)["facts"] == revised["facts"]
-    finally:
-        human.send_signal(signal.SIGINT)
-        human.wait(timeout=30)
-        log.close()
-    assert human.returncode == 0
