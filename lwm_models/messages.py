@@ -147,6 +147,10 @@ PLAIN = [
     (r"^descriptions: must contain at least (\d+) items$", r"the manual needs \1 descriptions, one per entity"),
     (r"^descriptions: must contain less than or equal to (\d+) items$", r"the manual takes \1 descriptions, no more"),
     (r"^descriptions/(\d+): must match pattern .*$", "description {n1} is empty"),
+    (r"^descriptions/(\d+): must be longer than or equal to 1 characters$", "description {n1} is empty"),
+    (r"^descriptions/(\d+): must be string$", "description {n1} must be text"),
+    (r"^facts/(\d+)/(\w+): must be one of \[(.*)\]$", r"fact {n1}: its \2 is one of \3"),
+    (r"^facts/(\d+): must contain \[(.*)\] properties$", r"fact {n1} needs an entity, a field and a value"),
     (
         r"^descriptions/(\d+): must be shorter than or equal to (\d+) characters$",
         r"description {n1} is over \2 characters",

@@ -146,6 +146,22 @@ LABELS = {"version": messages.version("labels"), "review_id": "newall-test:0:0",
         ("manual", {"version": MANUAL_V, "descriptions": ["one"]}, "the manual needs 3 descriptions"),
         ("manual", {"version": MANUAL_V, "descriptions": ["a", "b", "c", "d"]}, "the manual takes 3 descriptions"),
         ("manual", {"version": MANUAL_V, "descriptions": ["a", "  ", "c"]}, "description 2 is empty"),
+        ("manual", {"version": MANUAL_V, "descriptions": ["a", "", "c"]}, "description 2 is empty"),
+        ("manual", {"version": MANUAL_V, "descriptions": ["a", "b", 3]}, "description 3 must be text"),
+        (
+            "manual",
+            {
+                "version": MANUAL_V,
+                "descriptions": ["a", "b", "c"],
+                "facts": [{"entity": "dragon", "field": "role", "value": "enemy"}],
+            },
+            "fact 1: its entity is one of",
+        ),  # fmt: skip
+        (
+            "manual",
+            {"version": MANUAL_V, "descriptions": ["a", "b", "c"], "facts": [{"entity": "dog"}]},
+            "fact 1 needs an entity, a field and a value",
+        ),
         ("manual", {"version": MANUAL_V, "descriptions": ["a", "b", "c" * 3000]}, "description 3 is over 2000"),
         ("labels", {**LABELS, "states": [0], "actions": [9]}, "label 1: an action is 0 up, 1 down"),
         ("labels", {**LABELS, "states": "0", "actions": [1]}, "the labelled states must be a list"),

@@ -358,13 +358,13 @@ def test_review_in_the_browser(unnamed_page_system, browser):
     box.clear()
     box.send_keys(f"the {stranger} is the goal and it never moves.")
     browser.find_element("id", "send-manual").click()
-    wait.until(lambda _: "not on this board" in text("message"))
-    assert f"as about the {stranger}, not on this board" in text("message")
+    wait.until(lambda _: "not on this board" in text("manual-message"))
+    assert f"as about the {stranger}, not on this board" in text("manual-message")
     # The served model grounds its words: the one board entity no other description names is taken
     # as the stray description's, and the person is told which.
     wait.until(lambda _: f"{stranger} (not on this board: taken as the " in text("reading"))
     taken = json.load(urllib.request.urlopen(url + "api/state", timeout=10))["status"]["reading"][0]["grounded_as"]
-    assert taken in status["board"] and f"as about the {taken}, the one entity on the board" in text("message")
+    assert taken in status["board"] and f"as about the {taken}, the one entity on the board" in text("manual-message")
     shoot(browser, tmp_path, "review_page_off_board.png", "reading")
 
     # Two descriptions of entities that are not on this board: the two board entities left are
@@ -375,7 +375,7 @@ def test_review_in_the_browser(unnamed_page_system, browser):
     browser.find_element("id", "d1").clear()
     browser.find_element("id", "d1").send_keys(f"the {second} chases you and it has the message.")
     browser.find_element("id", "send-manual").click()
-    wait.until(lambda _: "one each" in text("message"))
+    wait.until(lambda _: "one each" in text("manual-message"))
     shared = json.load(urllib.request.urlopen(url + "api/state", timeout=10))["status"]["reading"]
     left = shared[0]["grounded_among"]
     assert shared[1]["grounded_among"] == left and len(left) == 2 and set(left) <= set(status["board"])
@@ -392,9 +392,17 @@ def test_review_in_the_browser(unnamed_page_system, browser):
     # its identity open too, shared out with the entity no description names)
     box.send_keys(f"the {status['reading'][0]['identity']} never moves.")
     browser.find_element("id", "send-manual").click()
-    wait.until(lambda _: "leaves its role unclear" in text("message"))
+    wait.until(lambda _: "leaves its role unclear" in text("manual-message"))
     wait.until(lambda _: "role unclear" in text("reading"))
     shoot(browser, tmp_path, "review_page_left_open.png", "reading")
+
+    # A manual that cannot be taken: the refusal, in plain words and counted from 1, beside it.
+    kept = browser.find_element("id", "d1").get_attribute("value")
+    browser.find_element("id", "d1").clear()
+    browser.find_element("id", "send-manual").click()
+    wait.until(lambda _: "the manual was refused: description 2 is empty" in text("manual-message"))
+    assert "the manual was refused" not in text("message")
+    browser.find_element("id", "d1").send_keys(kept)
 
     # Another origin cannot answer through the reviewer's browser.
     request = urllib.request.Request(
