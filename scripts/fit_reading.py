@@ -42,6 +42,7 @@ from lwm_models.world.frozen_text import FrozenTextEncoder  # noqa: E402
 from lwm_models.world.manual_reading import (  # noqa: E402
     ANCHORS_FILE,
     CALIBRATION_FILE,
+    VALUES,
     Calibration,
     evidence_for,
     fit_anchors,
@@ -58,6 +59,7 @@ FOLDS = 5
 DEV_SPLITS = ("newcombo-dev", "newattr-dev", "newall-dev")
 GENERATED_PER_TRIPLE = 24
 STRAY_NOUNS = ("dragon", "car", "tree", "lamp", "cat", "wizard", "bus", "teapot", "zombie", "knight", "train", "cow")
+ANCHORED_ON = "the dataset's training and dev text where it has the triple, else the generator's"
 STRAY_WEIGHT = 0.1  # of a source's weight: a person's text is seldom about no entity of the game
 TEMPERATURES = np.round(np.arange(0.2, 4.01, 0.05), 2)
 
@@ -142,14 +144,14 @@ def main() -> int:
     weights = [w * (STRAY_WEIGHT if t[0] == "?" else 1.0) for w, t in zip(weights, truth, strict=True)]
     print(f"fitting on {len(texts)} descriptions: " + ", ".join(
         f"{s} {sum(len(v) for v in b.values())}" for s, b in sources.items()), flush=True)  # fmt: skip
-    vectors = sentence_vectors(encoder, texts)
+    vectors = None if args.words_only else sentence_vectors(encoder, texts)
     weights_a = np.asarray(weights)
     # The stacking weights are fitted on heads that never saw the description (5 folds), so that
     # they weigh the head as it reads new text, not text it has fitted.
     folds = np.random.default_rng(args.seed).integers(FOLDS, size=len(texts))
     heads, held_out = {}, {}
     for k, name in ((1, "movement"), (2, "role")):
-        values = MOVEMENTS if name == "movement" else ROLES
+        values = VALUES[name]
         known = np.array([t[k] in values for t in truth])
         y = np.array([values.index(t[k]) if t[k] in values else 0 for t in truth])
         lp = np.zeros((len(texts), 3))
@@ -198,9 +200,8 @@ def main() -> int:
         "generator": f"{GENERATED_PER_TRIPLE} per triple",
         "dataset": [p.name for p in args.texts] and ["train", *DEV_SPLITS],
         "stray weight": STRAY_WEIGHT,
-        "anchors": "the dataset's training and dev text where it has the triple, else the generator's"
-        if args.texts
-        else "the generator's text",
+        # The words alone have no world model to anchor.
+        **({} if model is None else {"anchors": ANCHORED_ON if args.texts else "the generator's text"}),
         "temperature manuals": f"{len(games)} games of {', '.join(DEV_SPLITS)}, the stress set's written part",
         "model": "the keyword parser alone" if model is None else folder.name,
         "seed": args.seed,

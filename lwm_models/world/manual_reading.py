@@ -200,24 +200,33 @@ def fit_identity_rates(
     return rates
 
 
+def _fit_softmax(params: list, logits, truth: np.ndarray, weights: np.ndarray, max_iter: int, penalty=None) -> None:
+    """Fit `params` (tensors, in place) so that the softmax of `logits()` [N, 3] has the highest
+    weighted log-likelihood of `truth` [N] (description weights [N]), less `penalty()`."""
+    import torch
+
+    y, wt = torch.as_tensor(truth), torch.as_tensor(weights, dtype=torch.float64)
+    opt = torch.optim.LBFGS(params, max_iter=max_iter, line_search_fn="strong_wolfe")
+
+    def loss():
+        opt.zero_grad()
+        out = (torch.nn.functional.cross_entropy(logits(), y, reduction="none") * wt).sum() / wt.sum()
+        if penalty is not None:
+            out = out + penalty()
+        out.backward()
+        return out
+
+    opt.step(loss)
+
+
 def fit_fact_weights(features: np.ndarray, truth: np.ndarray, weights: np.ndarray) -> list[float]:
     """The weights of one fact (`fact_probs`) of highest weighted log-likelihood: features
     [N, 3, 3], true value indices [N], description weights [N]."""
     import torch
 
-    x, y = torch.as_tensor(features, dtype=torch.float64), torch.as_tensor(truth)
-    wt = torch.as_tensor(weights, dtype=torch.float64)
+    x = torch.as_tensor(features, dtype=torch.float64)
     params = torch.zeros(6, dtype=torch.float64, requires_grad=True)
-    opt = torch.optim.LBFGS([params], max_iter=300, line_search_fn="strong_wolfe")
-
-    def loss():
-        opt.zero_grad()
-        z = x @ params[:3] + params[3:]
-        out = (torch.nn.functional.cross_entropy(z, y, reduction="none") * wt).sum() / wt.sum()
-        out.backward()
-        return out
-
-    opt.step(loss)
+    _fit_softmax([params], lambda: x @ params[:3] + params[3:], truth, weights, max_iter=300)
     return [round(float(v), 5) for v in params.detach()]
 
 
@@ -227,19 +236,9 @@ def fit_head(vectors: np.ndarray, truth: np.ndarray, weights: np.ndarray, decay:
 
     mean, scale = vectors.mean(0), vectors.std(0) + 1e-6
     x = torch.as_tensor((vectors - mean) / scale, dtype=torch.float64)
-    y, wt = torch.as_tensor(truth), torch.as_tensor(weights, dtype=torch.float64)
     w = torch.zeros(3, x.shape[1], dtype=torch.float64, requires_grad=True)
     b = torch.zeros(3, dtype=torch.float64, requires_grad=True)
-    opt = torch.optim.LBFGS([w, b], max_iter=200, line_search_fn="strong_wolfe")
-
-    def loss():
-        opt.zero_grad()
-        nll = (torch.nn.functional.cross_entropy(x @ w.T + b, y, reduction="none") * wt).sum() / wt.sum()
-        out = nll + decay * (w**2).sum()
-        out.backward()
-        return out
-
-    opt.step(loss)
+    _fit_softmax([w, b], lambda: x @ w.T + b, truth, weights, max_iter=200, penalty=lambda: decay * (w**2).sum())
     weight = w.detach().numpy() / scale  # the standardisation folded in
     return SentenceHead(weight, b.detach().numpy() - weight @ mean)
 

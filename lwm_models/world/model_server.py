@@ -69,13 +69,17 @@ class ManualState:
     version: int = 0
     source: str = ""
     game: str = ""  # split:index of the last environment manual
-    facts: list[dict] = field(default_factory=list)  # what the person stated (answers), held for sure
     # When the person signed the newest manual taken (Unix time; 0: none yet): a manual signed
     # earlier is an old one delivered again (a latched topic after a restart).
     signed_at: float = 0.0
     batch: ManualBatch | None = None
     cond: Conditioning | None = None  # the model's conditioning on `batch` as read on a board
     cond_words: tuple = ()  # the words `cond` read (a grounding model's depend on the board)
+
+    @property
+    def facts(self) -> list[dict]:
+        """What the person stated with the manual (answers), held for sure: the manual's own."""
+        return [] if self.batch is None else list(self.batch.facts)
 
     def to_json(self) -> dict:
         return {"manual": self.manual, "version": self.version, "source": self.source, "game": self.game,
@@ -170,7 +174,7 @@ class WorldModelServer:
             batch = replace(batch, facts=tuple(stated))
             self._assign(state, list(descriptions), batch, *self._read_back(descriptions, batch))
             # The newest signature taken stays the floor, through the environment's unsigned manuals too.
-            state.source, state.facts, state.signed_at = source, stated, max(state.signed_at, float(signed_at))
+            state.source, state.signed_at = source, max(state.signed_at, float(signed_at))
             self._save()
             return state.version, True
 
@@ -187,7 +191,7 @@ class WorldModelServer:
                     out[name] = (state.version, False)
                     continue
                 self._assign(state, list(descriptions), batch, *reading)
-                state.source, state.facts, state.signed_at = source, [], max(state.signed_at, float(signed_at))
+                state.source, state.signed_at = source, max(state.signed_at, float(signed_at))
                 out[name] = (state.version, True)
             self._save()
             return out
@@ -304,10 +308,8 @@ class WorldModelServer:
         batch, manual, version, _ = self._manual_for(request)
         start = self._starts(request)[:1]
         read = self.model.on_board(batch, board_of(start)).reading
-        if read is None:
-            return {"ok": True, "op": "read", "model": self.model_name, "manual_version": version, "manual": manual}
-        return {"ok": True, "op": "read", "model": self.model_name, "manual_version": version, "manual": manual,
-                **read.answer()}  # fmt: skip
+        out = {"ok": True, "op": "read", "model": self.model_name, "manual_version": version, "manual": manual}
+        return out if read is None else {**out, **read.answer()}
 
     def _save(self) -> None:
         if self.state_path is None:
@@ -330,9 +332,8 @@ class WorldModelServer:
                     continue
                 state = self.agents[name]
                 if entry.get("manual"):
-                    state.facts = [check_fact(f) for f in entry.get("facts", [])]
-                    batch = self.model.read_manual(entry["manual"], self.encoder)
-                    state.batch = replace(batch, facts=tuple(state.facts))
+                    facts = tuple(check_fact(f) for f in entry.get("facts", []))
+                    state.batch = replace(self.model.read_manual(entry["manual"], self.encoder), facts=facts)
                     state.manual = list(entry["manual"])
                     state.reading, state.unsure = self._read_back(state.manual, state.batch)
                 state.version = int(entry.get("version", 0))

@@ -143,7 +143,7 @@ class TerminalReviewer(Reviewer):
             self.show_state(k)
 
     def on_notice(self, text: str) -> None:
-        print(f"NOTICE {text}", flush=True)
+        super().on_notice(text)
         if self.node.plan is not None:
             print(PROMPT, flush=True)
 
