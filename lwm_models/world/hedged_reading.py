@@ -552,8 +552,8 @@ class HedgedReading:
         readings with their probabilities, each description conditioned on its triple's anchor
         (`manual_reading.fit_anchors`): what the model reads from the most typical description of
         that triple in the text it was trained on. A plan is then imagined in the model's own
-        language whatever the person's words; their own reading, off that language, imagined
-        deaths in every plan of games whose plans with the dataset's text mostly lived."""
+        language whatever the person's words: the model's own reading of words unlike its training
+        text imagines deaths that do not happen, even where the reading is right."""
         index = {t: k for k, t in enumerate(ALL_TRIPLES)}
         ks, vs, priors = [], [], []
         for triples, p in manual.reading.configurations():
