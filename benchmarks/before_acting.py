@@ -13,7 +13,13 @@ parser alone) and per manual source, this prints and writes:
 - questions: those asked before planning (`ManualReading.questions`), answered truthfully by the
   simulated person, and the roles right after the answers;
 - unusable text: manuals whose descriptions carry no usable fact (gibberish, other games'
-  entities) and the share of entities with every role below 50%.
+  entities) and the share of entities with every role below 50%;
+- the world model under the reading (with --data, for models): on evenly spaced recorded episodes
+  of NewAll test with their manuals drawn from each source, the imagined reward and termination
+  precision of a lone trajectory replaying the real actions from the real start (Table 2's, raw
+  sampling), and the cross-entropy of the real episode under the reading before any step (its
+  configurations mixed by their probabilities, never updated by the episode: what a plan rests
+  on) beside the teacher-forced one (the readings' mixture updated by the episode as it goes).
 
 Sources: `dataset` (the human-written descriptions of NewAll test, with --texts), `generated`
 (the project's generator), `fresh` (the fresh held-out part, lwm_models/text/stress_fresh.json:
@@ -43,10 +49,14 @@ sys.path.insert(0, str(ROOT))
 from lwm_models.data.splits import load_split  # noqa: E402
 from lwm_models.messenger.constants import IDENTITIES, ROLES  # noqa: E402
 from lwm_models.text.pools import DescriptionPools  # noqa: E402
-from lwm_models.text.stress import load_fresh  # noqa: E402
+from lwm_models.text.stress import fresh_pools, load_fresh  # noqa: E402
 from lwm_models.world.checkpoint import load_checkpoint  # noqa: E402
+from lwm_models.world.evaluate import ImaginationScore  # noqa: E402
 from lwm_models.world.frozen_text import FrozenTextEncoder  # noqa: E402
+from lwm_models.world.imagine import imagine  # noqa: E402
 from lwm_models.world.manual_reading import calibration_for, evidence_for, read_manual  # noqa: E402
+from lwm_models.world.tokens import ID_SLOTS  # noqa: E402
+from lwm_models.world.training_data import SplitTokens, redraw_manuals  # noqa: E402
 
 SPLIT = "newall-test"
 SOURCES = ("dataset", "generated", "fresh", "unusable")
@@ -92,7 +102,7 @@ class Reader:
     def evidence(self, texts: list[str]) -> list:
         todo = [t for t in dict.fromkeys(texts) if t not in self._cache]
         if todo:
-            self._cache.update(zip(todo, evidence_for(self.model, self.encoder, todo, self.calibration.heads),
+            self._cache.update(zip(todo, evidence_for(self.model, self.encoder, todo, self.calibration.sentence),
                                    strict=True))  # fmt: skip
         return [self._cache[t] for t in texts]
 
@@ -176,6 +186,46 @@ def manuals(source: str, games, rng, texts_files) -> list[tuple[list[str], list[
         else:
             out.append((pools.draw(SPLIT, triples, rng), triples, [source] * 3))
     return out
+
+
+def _add_cross_entropy(sums: dict, predictions: dict) -> None:
+    """Per kind (obs, reward, done): add the negative log-likelihood of the true tokens and their count."""
+    for kind, (log_probs, targets, valid) in predictions.items():
+        true = log_probs.gather(-1, targets[..., None]).squeeze(-1)
+        nll, n = sums.get(kind, (0.0, 0))
+        sums[kind] = (nll - float((true * valid).sum()), n + int(valid.sum()))
+
+
+def _total(sums: dict) -> float:
+    """As `lwm eval` reports it: the per-token means of obs, reward and done, summed."""
+    return sum(nll / max(1, n) for nll, n in sums.values())
+
+
+@torch.no_grad()
+def world_model_figures(reader: Reader, source: str, data_root: Path, episodes: int, seed: int) -> dict:
+    """The world model under the manual's reading, on recorded episodes (module docstring)."""
+    model, encoder = reader.model, reader.encoder
+    data = SplitTokens(data_root, SPLIT, encoder, model.route)
+    if source != "dataset":
+        pools = fresh_pools() if source == "fresh" else DescriptionPools.generated(seed=0)
+        redraw_manuals(data, pools, encoder, seed=seed)
+    score = ImaginationScore()
+    prior: dict = {}
+    forced: dict = {}
+    for e in data.evaluated_episodes(episodes):
+        ep = data.ds[int(e)]
+        tokens, lengths = data.segments(np.array([e]), np.zeros(1, dtype=np.int64))
+        texts = [data.texts[int(i)] for i in data.manuals[e]]
+        manual = model.on_board(model.read_manual(texts, encoder), tokens[:, torch.as_tensor(ID_SLOTS)])
+        _add_cross_entropy(prior, model.prior_predictions(tokens, lengths, manual))
+        _add_cross_entropy(forced, model.predictions(tokens, lengths, data.manual_batch(np.array([e]))))
+        actions = np.zeros((1, 32), dtype=np.int64)
+        actions[0, : len(ep.actions) - 1] = ep.actions[1:]
+        score.add(imagine(model, manual, ep.observations[0][None], 1, actions, seed=seed + int(e)), [ep])
+    m = score.metrics()
+    return {"episodes": int(m.episodes), "reward_precision": m.reward_precision,
+            "termination_precision": m.termination_precision, "prior_cross_entropy": _total(prior),
+            "teacher_forced_cross_entropy": _total(forced)}  # fmt: skip
 
 
 def summarise(records: list[dict]) -> dict:
@@ -275,6 +325,10 @@ def main() -> int:
     ap.add_argument("--games", type=int, default=200, help="NewAll test games, drawn at random")
     ap.add_argument("--seed", type=int, default=0, help="draws the games and their manuals")
     ap.add_argument("--out", type=Path, default=OUT, help="summary JSON; records beside it (.jsonl), plot (.png)")
+    ap.add_argument("--data", type=Path, default=None,
+                    help="a dataset with NewAll test's recorded episodes (lwm data generate): the world model "
+                         "under the reading is measured on them")  # fmt: skip
+    ap.add_argument("--episodes", type=int, default=100, help="recorded episodes, evenly spaced (with --data)")
     args = ap.parse_args()
     torch.set_num_threads(2)
     sources = [s for s in args.sources if s != "dataset" or args.texts]
@@ -284,7 +338,7 @@ def main() -> int:
     rng = np.random.default_rng(args.seed)
     games = [split[int(i)] for i in rng.choice(len(split), size=min(args.games, len(split)), replace=False)]
     began = time.perf_counter()
-    records = []
+    records, world = [], {}
     for name in args.models:
         reader = Reader(name)
         for source in sources:
@@ -293,11 +347,16 @@ def main() -> int:
                 records.append({"reader": name, "source": source, "game": game.entities[0].identity,
                                 **score(reader, texts, triples, styles)})  # fmt: skip
             print(table({name: {source: summarise(records)[name][source]}}).splitlines()[-1], flush=True)
+            if args.data is not None and reader.model is not None and source != "unusable":
+                figures = world_model_figures(reader, source, args.data, args.episodes, args.seed)
+                world.setdefault(name, {})[source] = _rounded(figures)
+                print(f"  world model under the reading, {source}: {world[name][source]}", flush=True)
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout
     summary = {
         "settings": {"split": SPLIT, "games": len(games), "seed": args.seed, "readers": args.models,
-                     "sources": sources},
+                     "sources": sources, "recorded episodes": args.episodes if args.data else 0},
         "results": summarise(records),
+        "world_model": world,
         "run": {"command": " ".join(["benchmarks/before_acting.py", *sys.argv[1:]]), "commit": commit.strip(),
                 "seconds": round(time.perf_counter() - began, 1)},
     }  # fmt: skip

@@ -603,6 +603,32 @@ def before_acting_styles(base: str) -> list[str]:
     return lines
 
 
+def before_acting_world(base: str) -> list[str]:
+    """The default world model under the manual's reading, per source of the manuals."""
+    path = "before-acting/summary.json"
+    summary = _load(path)
+    lines = [
+        "| manuals | imagined reward precision | imagined termination precision | cross-entropy under the "
+        "reading before any step | teacher-forced cross-entropy (updated by the episode) |",
+        "|---|---|---|---|---|",
+    ]
+    world = summary.get("world_model", {}).get("emma-lwm-hedged", {})
+    for source, label in READING_SOURCES:
+        c = world.get(source)
+        if c is not None:
+            lines.append(
+                f"| {label} | {c['reward_precision']:.2f} | {c['termination_precision']:.2f} | "
+                f"{c['prior_cross_entropy']:.3f} | {c['teacher_forced_cross_entropy']:.3f} |"
+            )
+    episodes = summary["settings"].get("recorded episodes", 0)
+    lines.append(
+        f"\n{episodes} recorded NewAll test episodes, evenly spaced, each with its manual drawn from the source; "
+        f"a lone imagined trajectory replays the real actions; cross-entropy as `lwm eval` reports it (obs + reward "
+        f"+ done, per token); {_link(path, base)}."
+    )
+    return lines
+
+
 REVIEW_READING = (
     ("reading-dataset", "the dataset's text"),
     ("reading-dataset-questions", "the dataset's text, questions answered"),
@@ -644,6 +670,7 @@ def review_loop_reading(base: str) -> list[str]:
 TABLES: dict[str, Callable[[str], list[str]]] = {
     "before-acting": before_acting,
     "before-acting-styles": before_acting_styles,
+    "before-acting-world": before_acting_world,
     "review-loop-reading": review_loop_reading,
     "effort": effort,
     "teaching-minibatch": teaching_minibatch,

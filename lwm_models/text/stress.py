@@ -30,6 +30,7 @@ from .pools import DescriptionPools, receiving_splits
 
 STRESS_FILE = Path(__file__).with_name("stress_set.json")
 FRESH_FILE = Path(__file__).with_name("stress_fresh.json")
+VARIED_FILE = Path(__file__).with_name("stress_varied.json")
 PARTS = ("tune", "dev", "heldout", "written")
 
 
@@ -81,6 +82,15 @@ def load_fresh(unusable: bool = False, path: str | Path = FRESH_FILE) -> list:
         return list(doc["unusable"])
     fields = ("text", "identity", "movement", "role", "style")
     return [StressEntry(**{k: e[k] for k in fields}, split="fresh") for e in doc["entries"]]
+
+
+def load_varied(path: str | Path = VARIED_FILE) -> list[StressEntry]:
+    """The varied part (stress_varied.json): 1,296 hand-written descriptions, four per triple from
+    each of three writers in twelve styles, written from the game's facts alone, for fitting the
+    manual's reading. A description that leaves its movement out has movement "?"."""
+    doc = json.loads(Path(path).read_text(encoding="utf-8"))
+    return [StressEntry(e["text"], e["identity"], e["movement"] if e.get("movement_stated", True) else "?",
+                        e["role"], e["style"], "varied") for e in doc["entries"]]  # fmt: skip
 
 
 def stress_texts(

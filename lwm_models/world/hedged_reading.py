@@ -347,13 +347,14 @@ def mixture_log_probs(
     positions: dict[str, torch.Tensor],
     owner: torch.Tensor,
     log_prior: torch.Tensor,
+    posterior: bool = True,
 ) -> dict[str, torch.Tensor]:
     """The world model's predictions under its readings combined: per kind, log_probs [R, P, V] of
     each reading row, the true next tokens [R, P] (the same for the rows of one manual) and the
     positions [P] they sit at -> [B, P, V], each token's probability the mixture of the readings'
     weighted by their posterior given the true tokens before it (Bayes: prior times the
     likelihood of the episode so far). A reading that the episode contradicts loses its weight
-    within a few tokens."""
+    within a few tokens. Without `posterior`, the weights stay the prior throughout."""
     names = list(log_probs)
     pos = torch.cat([positions[k] for k in names])
     order = torch.argsort(pos)
@@ -361,7 +362,7 @@ def mixture_log_probs(
     before = torch.cumsum(true, 1) - true  # log-likelihood of the tokens before each one
     back = torch.empty_like(order)
     back[order] = torch.arange(len(order))
-    before = before[:, back]  # in the kinds' own order again
+    before = before[:, back] if posterior else torch.zeros_like(true)  # in the kinds' own order again
     manuals = int(owner.max()) + 1
     out, lo = {}, 0
     for k in names:
@@ -375,6 +376,17 @@ def mixture_log_probs(
             mixed.append(torch.logsumexp(w[..., None] + log_probs[k][rows], 0))
         out[k] = torch.stack(mixed)
     return out
+
+
+def _episode_targets(tokens: torch.Tensor, lengths: torch.Tensor) -> tuple[dict, dict, dict]:
+    """Per kind (obs, reward, done): the positions [P] predicting a token, the true next tokens
+    [B, P] and whether each lies inside its episode [B, P]."""
+    layout = _targets_layout(tokens.shape[1])
+    slots = {"obs": SLOT_OBS, "reward": SLOT_REWARD, "done": SLOT_DONE}
+    positions = {k: torch.as_tensor(layout[slot]) for k, slot in slots.items()}
+    targets = {k: tokens[:, positions[k] + 1] for k in slots}
+    valid = {k: (p + 1)[None, :] < lengths.to(tokens.device)[:, None] * BLOCK for k, p in positions.items()}
+    return positions, targets, valid
 
 
 def ground_words(codes: torch.Tensor, board: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -473,7 +485,7 @@ class HedgedReading:
         if self.reading_calibration is not None:
             from .manual_reading import evidence_for
 
-            batch.evidence = evidence_for(self, encoder, list(descriptions), self.reading_calibration.heads)
+            batch.evidence = evidence_for(self, encoder, list(descriptions), self.reading_calibration.sentence)
         return batch
 
     def on_board(self, manual: ManualBatch, board: torch.Tensor) -> ManualBatch:
@@ -578,11 +590,7 @@ class HedgedReading:
         if self.training or not self.mixture:
             return super().predictions(tokens, lengths, manual)
         r = self._readings(self.on_board(manual, tokens[:, torch.as_tensor(ID_SLOTS)]), observed=True)
-        layout = _targets_layout(tokens.shape[1])
-        slots = {"obs": SLOT_OBS, "reward": SLOT_REWARD, "done": SLOT_DONE}
-        positions = {k: torch.as_tensor(layout[slot]) for k, slot in slots.items()}
-        targets = {k: tokens[:, positions[k] + 1] for k in slots}
-        valid = {k: (p + 1)[None, :] < lengths.to(tokens.device)[:, None] * BLOCK for k, p in positions.items()}
+        positions, targets, valid = _episode_targets(tokens, lengths)
         cut = (1 + PRUNE_STEPS) * BLOCK
         first = None
         if self.keep_readings and tokens.shape[1] > cut and bool((r.owner.bincount() > self.keep_readings).any()):
@@ -597,7 +605,23 @@ class HedgedReading:
         if first is not None:
             for k, early in first.items():
                 mixed[k][:, : early.shape[1]] = early
-        return {k: (mixed[k], targets[k], valid[k]) for k in slots}
+        return {k: (mixed[k], targets[k], valid[k]) for k in positions}
+
+    @torch.no_grad()
+    def prior_predictions(
+        self, tokens: torch.Tensor, lengths: torch.Tensor, manual: ManualBatch
+    ) -> dict[str, tuple[torch.Tensor, torch.Tensor, torch.Tensor]]:
+        """Teacher-forced predictions of one episode (`predictions`' shapes) under the manual's
+        reading before any step (`manual.reading`, set by `on_board`): its configurations mixed by
+        their probabilities, which the episode never updates. This is what a plan imagined before
+        the first real step rests on (benchmarks/before_acting.py)."""
+        if manual.reading is None:
+            raise ValueError("prior predictions need the manual's reading (read_manual, then on_board)")
+        self.eval()
+        r = self._configured(manual)
+        positions, targets, valid = _episode_targets(tokens, lengths)
+        mixed, _ = self._mixture(tokens, lengths, r, positions, targets, valid, posterior=False)
+        return {k: (mixed[k], targets[k], valid[k]) for k in positions}
 
     def _mixture(
         self,
@@ -607,6 +631,7 @@ class HedgedReading:
         positions: dict[str, torch.Tensor],
         targets: dict[str, torch.Tensor],
         valid: dict[str, torch.Tensor],
+        posterior: bool = True,
     ) -> tuple[dict[str, torch.Tensor], torch.Tensor]:
         """The readings' mixture at `positions` (per kind, [B, P, V]), and each reading's
         log-likelihood of the true tokens there [R]."""
@@ -624,7 +649,7 @@ class HedgedReading:
         likelihood = sum(
             (log_probs[k].gather(-1, per_row[k][..., None]).squeeze(-1) * valid[k][r.owner]).sum(1) for k in positions
         )
-        return mixture_log_probs(log_probs, per_row, positions, r.owner, r.log_prior), likelihood
+        return mixture_log_probs(log_probs, per_row, positions, r.owner, r.log_prior, posterior), likelihood
 
     def _stands(self, manual: ManualBatch) -> torch.Tensor:
         """[B, 3]: where the model's own reading is the only one."""

@@ -12,18 +12,18 @@ How a description is read. Three readers give evidence:
   cue words state, or nothing;
 - the world model's own reading (hedged models): the triple whose prototype lies nearest to what
   its description attention reads (`hedged_reading.prototype_distances`);
-- the sentence: a linear head per fact over the frozen sentence encoder's mean token vector
-  (up to `SENTENCE_TOKENS` tokens, so a long description is read whole).
+- the sentence: the text encoder tuned to read a description's movement and role
+  (`sentence_reader.py`), which reads word order and negation.
 The movement and the role of a description are a softmax over their three values of a weighted
-sum: the words' value, the model's value (each a one-hot) and the sentence head's log-probabilities,
+sum: the words' value, the model's value (each a one-hot) and the sentence reader's log-probabilities,
 plus a bias per value: six numbers per fact, fitted on descriptions of known truth by
 log-likelihood, so that a description's probabilities are calibrated where its text resembles the
 fitting text. Identity is read from the words and the model: how the two agree puts it in a class
 ("a keyword names it and the model agrees", "only the encoder's nearest name", ...), each with the
 measured rate of its first and second candidate being the truth, the rest spread evenly. Everything
 is fitted once per model (`scripts/fit_reading.py`) on text that no report is made on: the stress
-set's tune, dev, written and first held-out parts, the generator's text, the dataset's training
-text, and stray text about no entity of the game.
+set's tune, dev, written and first held-out parts, its varied part, the generator's text, the
+dataset's training text, and stray text about no entity of the game.
 
 How a manual is read. A manual describes the three board entities, each once, and gives each role
 to exactly one of them. The reading is exact over the 6 ways the descriptions map onto the board
@@ -51,12 +51,12 @@ import numpy as np
 
 from ..errors import LwmError
 from ..messenger.constants import ID_TO_IDENTITY, IDENTITIES, MOVEMENTS, ROLES, Triple
+from .sentence_reader import SENTENCE_FILE, SentenceReader
 
 FIELDS = ("identity", "movement", "role")
 VALUES: dict[str, tuple[str, ...]] = {"identity": tuple(IDENTITIES), "movement": MOVEMENTS, "role": ROLES}
 CALIBRATION_FILE = "reading.json"  # beside a checkpoint's weights
 ANCHORS_FILE = "reading_anchors.safetensors"  # and what imagination conditions each triple on
-SENTENCE_TOKENS = 96  # tokens the sentence head reads of a description
 ASK_BELOW = 0.9  # a fact the reading is less sure of than this is asked about before planning
 MAX_QUESTIONS = 3  # questions a manual asks at most before its plan
 MOVEMENT_WORDS = {"chaser": "comes toward you", "fleeing": "moves away from you", "immovable": "stays where it is"}
@@ -73,7 +73,7 @@ class Evidence:
     movement: str | None  # the movement a cue word states
     role: str | None
     model: Triple | None = None  # the world model's nearest prototype, (identity, movement, role)
-    sentence: dict[str, tuple[float, ...]] = field(default_factory=dict)  # fact -> the head's log-probabilities
+    sentence: dict[str, tuple[float, ...]] = field(default_factory=dict)  # fact -> the sentence reader's log-probs
 
     def fact_class(self) -> tuple[str, tuple[str, ...]]:
         """The class of the identity and its candidates, first the one the class's rate backs: the
@@ -91,31 +91,11 @@ class Evidence:
 
     def features(self, name: str) -> np.ndarray:
         """[3, 3]: per value of a movement or role, the words' one-hot, the model's one-hot and the
-        sentence head's log-probability (0 where a reader says nothing)."""
+        sentence reader's log-probability (0 where a reader says nothing)."""
         values = VALUES[name]
         words, model = getattr(self, name), None if self.model is None else self.model[FIELDS.index(name)]
         head = self.sentence.get(name, (0.0, 0.0, 0.0))
         return np.array([[float(words == v), float(model == v), head[k]] for k, v in enumerate(values)])
-
-
-@dataclass
-class SentenceHead:
-    """A linear head over a description's mean token vector: [3] log-probabilities of one fact."""
-
-    weight: np.ndarray  # [3, F]
-    bias: np.ndarray  # [3]
-
-    def log_probs(self, vectors: np.ndarray) -> np.ndarray:
-        z = vectors @ self.weight.T + self.bias
-        z = z - z.max(-1, keepdims=True)
-        return z - np.log(np.exp(z).sum(-1, keepdims=True))
-
-    def to_json(self) -> dict:
-        return {"weight": np.round(self.weight, 6).tolist(), "bias": np.round(self.bias, 6).tolist()}
-
-    @classmethod
-    def from_json(cls, doc: dict) -> SentenceHead:
-        return cls(np.asarray(doc["weight"], dtype=np.float64), np.asarray(doc["bias"], dtype=np.float64))
 
 
 @dataclass
@@ -124,7 +104,7 @@ class Calibration:
 
     identity: dict[str, dict]  # class -> {"first", "second": P(that candidate is true), "n"}
     weights: dict[str, list[float]]  # movement / role -> [words, model, sentence, bias per value (3)]
-    heads: dict[str, SentenceHead] = field(default_factory=dict)  # movement / role
+    sentence: SentenceReader | None = None  # the tuned sentence reader (None: words and model only)
     temperature: float = 1.0  # on the identities and roles of a manual's descriptions
     movement_temperature: float = 1.0
     fitted_on: dict = field(default_factory=dict)  # what it was fitted on, and how
@@ -133,17 +113,22 @@ class Calibration:
     def load(cls, path: str | Path) -> Calibration:
         try:
             doc = json.loads(Path(path).read_text(encoding="utf-8"))
-            heads = {k: SentenceHead.from_json(v) for k, v in doc.get("heads", {}).items()}
-            return cls(doc["identity"], doc["weights"], heads, float(doc["temperature"]),
-                       float(doc["movement_temperature"]), doc.get("fitted_on", {}))  # fmt: skip
+            calibration = cls(doc["identity"], doc["weights"], None, float(doc["temperature"]),
+                              float(doc["movement_temperature"]), doc.get("fitted_on", {}))  # fmt: skip
         except (OSError, ValueError, KeyError, TypeError) as exc:
             raise LwmError(f"cannot read the reading calibration {path}: {exc}") from None
+        if doc.get("sentence"):  # a file beside it
+            calibration.sentence = SentenceReader.load(Path(path).parent / doc["sentence"])
+        return calibration
 
     def save(self, path: str | Path) -> None:
+        """reading.json, and the sentence reader beside it."""
         doc = {"temperature": self.temperature, "movement_temperature": self.movement_temperature,
                "identity": self.identity, "weights": self.weights, "fitted_on": self.fitted_on,
-               "heads": {k: h.to_json() for k, h in self.heads.items()}}  # fmt: skip
+               "sentence": None if self.sentence is None else SENTENCE_FILE}  # fmt: skip
         Path(path).write_text(json.dumps(doc, indent=1) + "\n", encoding="utf-8")
+        if self.sentence is not None:
+            self.sentence.save(Path(path).parent / SENTENCE_FILE)
 
     def distribution(self, evidence: Evidence, name: str) -> dict[str, float]:
         """One fact of one description as a distribution over its values."""
@@ -200,47 +185,25 @@ def fit_identity_rates(
     return rates
 
 
-def _fit_softmax(params: list, logits, truth: np.ndarray, weights: np.ndarray, max_iter: int, penalty=None) -> None:
-    """Fit `params` (tensors, in place) so that the softmax of `logits()` [N, 3] has the highest
-    weighted log-likelihood of `truth` [N] (description weights [N]), less `penalty()`."""
-    import torch
-
-    y, wt = torch.as_tensor(truth), torch.as_tensor(weights, dtype=torch.float64)
-    opt = torch.optim.LBFGS(params, max_iter=max_iter, line_search_fn="strong_wolfe")
-
-    def loss():
-        opt.zero_grad()
-        out = (torch.nn.functional.cross_entropy(logits(), y, reduction="none") * wt).sum() / wt.sum()
-        if penalty is not None:
-            out = out + penalty()
-        out.backward()
-        return out
-
-    opt.step(loss)
-
-
 def fit_fact_weights(features: np.ndarray, truth: np.ndarray, weights: np.ndarray) -> list[float]:
     """The weights of one fact (`fact_probs`) of highest weighted log-likelihood: features
     [N, 3, 3], true value indices [N], description weights [N]."""
     import torch
 
     x = torch.as_tensor(features, dtype=torch.float64)
+    y, wt = torch.as_tensor(truth), torch.as_tensor(weights, dtype=torch.float64)
     params = torch.zeros(6, dtype=torch.float64, requires_grad=True)
-    _fit_softmax([params], lambda: x @ params[:3] + params[3:], truth, weights, max_iter=300)
+    opt = torch.optim.LBFGS([params], max_iter=300, line_search_fn="strong_wolfe")
+
+    def loss():
+        opt.zero_grad()
+        out = (torch.nn.functional.cross_entropy(x @ params[:3] + params[3:], y, reduction="none") * wt).sum()
+        out = out / wt.sum()
+        out.backward()
+        return out
+
+    opt.step(loss)
     return [round(float(v), 5) for v in params.detach()]
-
-
-def fit_head(vectors: np.ndarray, truth: np.ndarray, weights: np.ndarray, decay: float = 1e-3) -> SentenceHead:
-    """A sentence head (`SentenceHead`) of highest weighted log-likelihood, with L2 `decay`."""
-    import torch
-
-    mean, scale = vectors.mean(0), vectors.std(0) + 1e-6
-    x = torch.as_tensor((vectors - mean) / scale, dtype=torch.float64)
-    w = torch.zeros(3, x.shape[1], dtype=torch.float64, requires_grad=True)
-    b = torch.zeros(3, dtype=torch.float64, requires_grad=True)
-    _fit_softmax([w, b], lambda: x @ w.T + b, truth, weights, max_iter=200, penalty=lambda: decay * (w**2).sum())
-    weight = w.detach().numpy() / scale  # the standardisation folded in
-    return SentenceHead(weight, b.detach().numpy() - weight @ mean)
 
 
 @dataclass(frozen=True)
@@ -501,25 +464,15 @@ def model_readings(model, encoder, texts: Sequence[str]) -> list[Triple] | None:
     return [ALL_TRIPLES[int(n)] for n in nearest]
 
 
-def sentence_vectors(encoder, texts: Sequence[str]) -> np.ndarray:
-    """[N, F]: each text's mean token vector from the frozen encoder, `SENTENCE_TOKENS` long."""
-    features, mask = encoder.keeping(SENTENCE_TOKENS).encode(list(texts))
-    m = mask.numpy()[..., None].astype(np.float64)
-    return (features.numpy().astype(np.float64) * m).sum(1) / np.maximum(m.sum(1), 1)
-
-
-def evidence_for(
-    model, encoder, texts: Sequence[str], heads: Mapping[str, SentenceHead] | None = None
-) -> list[Evidence]:
+def evidence_for(model, encoder, texts: Sequence[str], sentence_reader: SentenceReader | None = None) -> list[Evidence]:
     """The readers' evidence on each text: the words (with `encoder`, its nearest name where no
-    keyword names one), `model`'s own reading (None: no model) and the sentence `heads`."""
+    keyword names one), `model`'s own reading (None: no model) and the sentence reader's."""
     words = word_evidence(texts, encoder)
     read = model_readings(model, encoder, texts)
     sentence: list[dict] = [{} for _ in texts]
-    if heads and texts:
-        vectors = sentence_vectors(encoder, texts)
-        for name, head in heads.items():
-            for k, lp in enumerate(head.log_probs(vectors)):
+    if sentence_reader is not None and texts:
+        for name, rows in sentence_reader.log_probs(texts).items():
+            for k, lp in enumerate(rows):
                 sentence[k][name] = tuple(round(float(v), 5) for v in lp)
     return [Evidence(w.named, w.guessed, w.movement, w.role, None if read is None else read[k], sentence[k])
             for k, w in enumerate(words)]  # fmt: skip
@@ -574,7 +527,6 @@ __all__ = [
     "Evidence",
     "ManualReading",
     "Question",
-    "SentenceHead",
     "calibration_for",
     "check_fact",
     "fact_words",
@@ -584,9 +536,7 @@ __all__ = [
     "save_anchors",
     "fact_probs",
     "fit_fact_weights",
-    "fit_head",
     "fit_identity_rates",
-    "sentence_vectors",
     "model_readings",
     "read_manual",
     "word_evidence",
