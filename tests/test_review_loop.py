@@ -369,3 +369,25 @@ def test_an_older_manual_delivered_again_after_a_restart_is_no_new_version(encod
     assert (restarted.manual_version, restarted.manual) == (3, b)
     restarted.take_env_manual(MANUAL, "newall-test:5:0")  # a new game's own manual keeps the floor
     assert restarted.older(100.0) == 4
+
+
+def test_a_reject_that_changes_nothing_says_so(encoder):
+    """A reject alone changes nothing the agent has learnt: a plan imagined after it that makes the
+    rejected plan's moves again carries `repeats` (the person is told what can change it), and one
+    that moves otherwise does not. Ten rejects: with these seeds some plans repeat and some do not."""
+    sim = WorldModelServer(encoder=encoder)
+    h = LoopHarness(sim, Budget(iterations=1, episodes=2, grad_steps=2))
+    state = h.session.reset(0)
+    sim.take_env_manual(h.session.manual()["descriptions"], state["episode_id"])
+    h.loop.on_status(sim.status())
+    h.loop.on_state(state)
+    plans = [h.wait(h.plans, 1)]
+    for k in range(2, 12):
+        h.loop.on_feedback({"review_id": plans[-1]["review_id"], "plan_id": plans[-1]["plan_id"], "decision": "reject"})
+        plans.append(h.wait(h.plans, k))
+    for rejected, new in zip(plans, plans[1:]):
+        assert new["reason"] == "reject"
+        assert new.get("repeats") == (rejected["plan_id"] if new["actions"] == rejected["actions"] else None)
+        messages.validate("plan", {"version": messages.version("plan"), **new})
+    assert any("repeats" in p for p in plans[1:]), "every reject changed the plan: nothing here was tested"
+    h.loop.close()

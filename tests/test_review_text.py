@@ -123,3 +123,13 @@ def test_every_line_typed_at_the_terminal_gets_a_command_or_a_reason_in_plain_wo
         said = str(caught.value)
         assert reason in said, (line, said)
         assert "invalid literal" not in said and "unpack" not in said, (line, said)
+
+
+def test_a_plan_that_repeats_a_rejected_one_says_what_can_change_it():
+    plan = {**messages.schema("plan")["examples"][0], "reason": "reject", "repeats": 2}
+    said = [line for line in plan_text(plan).splitlines() if "plan 2" in line]
+    assert said == [
+        "the same moves as plan 2, which you rejected: rejecting alone changes nothing the agent has learnt. "
+        "To change the plan, correct a step (c STEP:ACTION), teach it (i) or rewrite the manual (m)"
+    ]
+    assert "rejected" not in plan_text(messages.schema("plan")["examples"][0])

@@ -418,6 +418,7 @@ class ReviewLoop:
 
     def _plan(self, r: Review, reason: str) -> None:
         start, start_step, before = self._start_of(r)
+        rejected = r.plan if reason == "reject" else None
         if reason in ("start", "manual") and self.config.teaching.rounds and r.agent.unread:
             if reason == "manual" and r.agent.confirmed(self._starts(r)):
                 self.ports.log(f"review {r.review_id}: the answer confirms the roles and movements it acts on")
@@ -437,6 +438,10 @@ class ReviewLoop:
             r.plan = plan
             r.phase = "reviewing"
             message = self._plan_message(r, plan, reason)
+            if rejected is not None and list(plan.actions) == list(rejected.actions):
+                # A reject changes nothing the agent has learnt, so the person must hear that the
+                # "new" plan is the old one, and what can change it.
+                message["repeats"] = rejected.plan_id
             self.ledger.record(r.review_id, "plan", message)
         self.ports.publish_plan(message)
         self.ports.log(

@@ -54,6 +54,12 @@ def progress_text(progress: dict) -> str:
     return f"the agent learnt from {manual} in {progress['seconds']:.0f} s ({progress['round']} rounds){roles}"
 
 
+REPEATS = (
+    "the same moves as plan {plan}, which you rejected: rejecting alone changes nothing the agent has learnt. "
+    "To change the plan, correct a step (c STEP:ACTION), teach it (i) or rewrite the manual (m)"
+)
+
+
 def plan_text(plan: dict, frames: str = "ends") -> str:
     """A plan for a terminal. frames: 'ends' (the start and the last board), 'all' or 'none'."""
     f = plan["futures"]
@@ -65,6 +71,8 @@ def plan_text(plan: dict, frames: str = "ends") -> str:
         f"its {f['k']} sampled futures: {f['death_share']:.0%} die, {f['win_share']:.0%} win, "
         f"mean return {f['return_mean']:+.2f}",
     ]
+    if plan.get("repeats"):
+        lines.append(REPEATS.format(plan=plan["repeats"]))
     if plan.get("questions"):
         lines.append(question_text(plan))
     if frames == "none":
