@@ -585,3 +585,42 @@ def test_the_terminal_asks_about_an_unclear_manual_and_takes_the_answer(system):
         robot = next(e for e in revised["roles"] if e["identity"] == "robot")
         assert robot["movement"] == "stays put" and robot["movement_p"] == 1.0
         assert status(system)["facts"] == revised["facts"]
+
+
+def test_a_correction_survives_a_killed_planner(system):
+    """kill -9 of the planner after a person's correction: the restarted planner resumes the review
+    from the ledger with the correction kept, so a plan it imagines afterwards still takes it, and
+    the correction is in the ledger once."""
+    from lwm_models.ledger import Ledger
+
+    assert call(system, "/env/reset", {"seed": 33})["ok"]
+    plan = wait_for(lambda: (p := latched(system, "/planner/plan"))["review_id"].endswith(":33") and p, timeout=90)
+    assert plan, "no plan for the reset episode"
+    wanted = (plan["actions"][0] + 2) % 5
+    base = {"version": 2, "review_id": plan["review_id"]}
+    fix = {
+        **base,
+        "plan_id": plan["plan_id"],
+        "decision": "corrections",
+        "corrections": [{"step": 1, "action": wanted}],
+    }
+    sent = lwm_ros(system, "pub", "/review/feedback", json.dumps(fix), "--kind", "review_feedback", *signed(system))
+    assert sent.returncode == 0, sent.stderr
+    revised = wait_for(lambda: (p := latched(system, "/planner/plan"))["plan_id"] > plan["plan_id"] and p, timeout=60)
+    assert revised and revised["actions"][0] == wanted
+
+    log = system["tmp"] / "logs" / "planner.log"
+    ready = log.read_text().count("READY")
+    os.kill(node_pid("lwm_nodes.planner_node", system["env"]["ROS_DOMAIN_ID"]), signal.SIGKILL)
+    assert wait_for(lambda: log.read_text().count("READY") > ready, timeout=90), log.read_text()[-2000:]
+    assert wait_for(lambda: f"review {plan['review_id']} resumed from the ledger" in log.read_text(), timeout=60)
+    reject = {**base, "plan_id": revised["plan_id"], "decision": "reject"}
+    sent = wait_for(
+        lambda: (s := lwm_ros(system, "pub", "/review/feedback", json.dumps(reject), "--kind", "review_feedback",
+                              *signed(system))).returncode == 0 and s, timeout=60)  # fmt: skip
+    assert sent, "the restarted planner never took the reject"
+    again = wait_for(lambda: (p := latched(system, "/planner/plan"))["plan_id"] > revised["plan_id"] and p, timeout=60)
+    assert again and again["actions"][0] == wanted, "the restarted planner lost the correction"
+    feedback = [r["payload"] for r in Ledger(system["tmp"] / "ledger.sqlite").history(plan["review_id"])
+                if r["kind"] == "feedback"]  # fmt: skip
+    assert [f["decision"] for f in feedback] == ["corrections", "reject"]
