@@ -14,7 +14,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from ..ledger import headline
-from ..messenger.render import board, identity_style
+from ..messenger.render import board, identity_style, symbol_key
 from ..text.parser import parse_description
 from .review_text import progress_text
 from .understood import believed, describe
@@ -64,7 +64,7 @@ def plan_view(plan: dict) -> dict:
         imagined.append({"identity": entry["identity"], "letter": letter, "colour": colour, "said": describe(entry)})
     believes = believed(plan["roles"]) if plan.get("roles") else None
     return {**plan, "frames": frames(plan["observations"]), "legend": legend(plan["manual"], plan.get("roles")),
-            "imagined": imagined, "believes": believes}  # fmt: skip
+            "imagined": imagined, "believes": believes, "board_key": symbol_key()}  # fmt: skip
 
 
 def progress_view(progress: dict) -> dict:
@@ -73,11 +73,13 @@ def progress_view(progress: dict) -> dict:
 
 
 def report_view(report: dict) -> dict:
-    """An execution report with the real and the planned frames side by side."""
+    """An execution report with the real and the planned frames side by side, and the key of the
+    symbols that are no identity's letter (the avatar, carrying the message or not)."""
     return {
         **report,
         "real_frames": frames(report.get("observations", [])),
         "planned_frames": frames(report.get("planned_observations", [])),
+        "board_key": symbol_key(),
     }
 
 

@@ -1,0 +1,108 @@
+"""The review page says what holds now (issue 59, item 8), in a real browser (headless Chromium
+driven by Selenium) against the real system: a new episode starts with an empty corrections box and
+the History on the review under review; the states a label request asks about come in ascending
+order; an answer the planner kept while it was starting stops saying so once the review opens; the
+boards' symbols and marks have a key beside the plan and the report. One system serves the file:
+each test starts from the review the system is on, whatever the tests before it left.
+Screenshots go to the test's directory (and to LWM_SCREENSHOTS)."""
+
+from __future__ import annotations
+
+import pytest
+
+pytest.importorskip("rclpy")
+pytest.importorskip("selenium.webdriver")
+from selenium.webdriver.support.ui import WebDriverWait  # noqa: E402
+from test_review_page import (  # noqa: E402 (after the skips: it needs Chromium and Selenium)
+    approve,
+    approve_until_reported,
+    browser,  # noqa: F401 (the headless Chromium fixture)
+    shoot,
+    start_page_system,
+)
+
+pytestmark = pytest.mark.system
+
+WAIT_S = 180  # generous: the machine may be shared (another test system, a training job)
+
+
+@pytest.fixture(scope="module")
+def system(tmp_path_factory):
+    """One launcher with the page for the file; the reviewer named, so answers apply at once."""
+    yield from start_page_system(tmp_path_factory.mktemp("page_text"), "--reviewer", "alice")
+
+
+class Page:
+    """The review page in the browser, with the waits the tests share."""
+
+    def __init__(self, driver, url: str) -> None:
+        self.driver = driver
+        driver.get(url)
+        self.wait = WebDriverWait(driver, WAIT_S, poll_frequency=0.3)
+        self.wait.until(lambda _: self.text("plan-title").startswith("plan ") and not self.off("reject"))
+
+    def text(self, element: str) -> str:
+        return self.driver.find_element("id", element).text
+
+    def off(self, button: str) -> bool:
+        return bool(self.driver.find_element("id", button).get_attribute("disabled"))
+
+    def review(self) -> str:
+        """The review of the plan shown ("plan 2 of review ID (reason), ...")."""
+        return self.text("plan-title").split(" of review ")[1].split()[0]
+
+    def plan_id(self) -> int:
+        return int(self.text("plan-title").split()[1])
+
+    def next_episode(self) -> str:
+        """Starts the next episode and waits for its first plan; returns its review id."""
+        before = self.review()
+        self.driver.find_element("id", "next-episode").click()
+        self.wait.until(lambda _: " started" in self.text("episode-message"))
+        self.wait.until(lambda _: self.review() != before and not self.off("reject"))
+        return self.review()
+
+    def chosen_history(self) -> str:
+        """The review the History shows the records of (its chosen row)."""
+        self.wait.until(lambda _: self.driver.find_elements("css selector", "#reviews tr.chosen"))
+        return self.driver.find_element("css selector", "#reviews tr.chosen td").text
+
+
+@pytest.fixture()
+def page(system, browser) -> Page:  # noqa: F811 (the fixture imported above)
+    url, _, _ = system
+    return Page(browser, url)
+
+
+def test_the_boards_symbols_and_marks_have_a_key(system, page):
+    """The report's frames showed a green outlined square and a yellow '&' that nothing explained.
+    Beside the plan and beside the report, a key says what '@', '&' and '*' are and what the died
+    and won marks are; the '&' chip has the colour of the '&' cell on the boards."""
+    _, tmp_path, _ = system
+    key = [e.text for e in page.driver.find_elements("css selector", "#plan-key div")]
+    expected = [
+        "@\nyou",
+        "&\nyou, carrying the message",
+        "*\ntwo entities on one cell",
+        "where you died",
+        "where you won",
+    ]
+    assert key == expected, key
+    approved = page.text("plan-title")
+    approve(page.driver)
+    approve_until_reported(page.driver, page.wait, approved)
+    key = [e.text for e in page.driver.find_elements("css selector", "#report-key div")]
+    assert key == expected, key
+    carrying = page.driver.find_elements("css selector", "#report-key .chip")[1]
+    assert carrying.value_of_css_property("background-color") == "rgba(255, 200, 0, 1)"  # the '&' cell's yellow
+    # The marks in the key are drawn: a green square's edge, a red one's.
+    edge = page.driver.execute_script(
+        "return ['dies', 'wins'].map((e) => Array.from("
+        "document.querySelector('#report-key canvas.mark-' + e).getContext('2d').getImageData(2, 9, 1, 1).data))"
+    )
+    assert edge == [[204, 0, 0, 255], [0, 119, 0, 255]], edge
+    # The report's last step, where a death or a win is marked.
+    page.driver.execute_script(
+        "const s = document.getElementById('report-step'); s.value = s.max; s.dispatchEvent(new Event('input'))"
+    )
+    shoot(page.driver, tmp_path, "review_page_report_key.png", "report")
