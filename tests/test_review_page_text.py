@@ -12,6 +12,7 @@ import pytest
 
 pytest.importorskip("rclpy")
 pytest.importorskip("selenium.webdriver")
+from selenium.webdriver.common.keys import Keys  # noqa: E402
 from selenium.webdriver.support.ui import WebDriverWait  # noqa: E402
 from test_review_page import (  # noqa: E402 (after the skips: it needs Chromium and Selenium)
     approve,
@@ -72,6 +73,45 @@ class Page:
 def page(system, browser) -> Page:  # noqa: F811 (the fixture imported above)
     url, _, _ = system
     return Page(browser, url)
+
+
+def test_the_states_asked_about_come_in_ascending_order(system, page):
+    """The states of a label request were walked as "state 3", then "state 0". Now the panel, the
+    keys and the overview all go by state number, as the terminal lists them."""
+    _, tmp_path, _ = system
+    page.driver.find_element("id", "imitate").click()
+    page.wait.until(lambda _: page.text("labels-title").startswith("label request "))
+    n = int(page.text("labels-title").split(": ")[1].split()[0])
+    assert n >= 2, page.text("labels-title")
+
+    def state() -> int:
+        return int(page.text("label-state-info").split()[0])
+
+    walked = [state()]
+    for _ in range(n - 1):
+        page.driver.find_element("tag name", "body").send_keys("n")
+        walked.append(state())
+    assert walked == list(range(n)), walked
+    # The overview's tiles, left to right, are the same states in the same order.
+    tiles = page.driver.execute_script("return tiles.xy.map(([x, y]) => x)")
+    assert tiles == list(range(n)), tiles
+    overview = page.driver.find_element("id", "label-overview")
+    side, gap = page.driver.execute_script("return [tiles.side, tiles.gap]")
+    for k in (n - 1, 0):  # a click on the k-th tile shows state k
+        page.driver.execute_script(
+            "const r = arguments[0].getBoundingClientRect(), at = {clientX: r.left + arguments[1], clientY: r.top + 5};"
+            "arguments[0].dispatchEvent(new MouseEvent('click', at));",
+            overview,
+            k * (side + gap) + side // 2,
+        )
+        assert state() == k
+    # A label moves on to the next state by number.
+    page.driver.find_element("tag name", "body").send_keys(Keys.ARROW_RIGHT)
+    assert state() == 1 and "1 of " in page.text("label-count")
+    shoot(page.driver, tmp_path, "review_page_states_in_order.png", "labels")
+    shown = page.plan_id()
+    page.driver.find_element("id", "stop-teaching").click()
+    page.wait.until(lambda _: page.plan_id() > shown and not page.driver.find_element("id", "labels").is_displayed())
 
 
 def test_the_boards_symbols_and_marks_have_a_key(system, page):

@@ -86,17 +86,23 @@ def report_view(report: dict) -> dict:
 def label_request_view(request: dict) -> dict:
     """A label request with its states' frames, `before[k]`: the state of the same imagined
     trajectory one step earlier (-1 at its start: a person judges movement from two frames), and
-    `order`: the states trajectory by trajectory, step by step, the order a person follows an
-    episode in (the request lists them step by step across trajectories)."""
+    `order`, the order the page walks the states in. A request of chosen states (it carries the
+    board before each, `previous`): by state number, as the terminal lists them and the labels
+    name them, each state standing alone. A whole round: trajectory by trajectory, step by step,
+    the order a person follows an episode in (the request lists them step by step across
+    trajectories)."""
     steps, trajectories = request["steps"], request["trajectories"]
     at = {(traj, step): k for k, (traj, step) in enumerate(zip(trajectories, steps, strict=True))}
     previous = request.get("previous")  # a request of chosen states carries the board before each
+    order = list(range(len(steps)))
+    if previous is None:
+        order.sort(key=lambda k: (trajectories[k], steps[k]))
     return {
         **request,
         "frames": frames(request["observations"]),
         "before": [at.get((traj, step - 1), -1) for traj, step in zip(trajectories, steps, strict=True)],
         "before_frames": None if previous is None else [None if o is None else frames([o])[0] for o in previous],
-        "order": sorted(range(len(steps)), key=lambda k: (trajectories[k], steps[k])),
+        "order": order,
     }
 
 
