@@ -8,6 +8,9 @@ Screenshots go to the test's directory (and to LWM_SCREENSHOTS)."""
 
 from __future__ import annotations
 
+import json
+import urllib.request
+
 import pytest
 
 pytest.importorskip("rclpy")
@@ -73,6 +76,43 @@ class Page:
 def page(system, browser) -> Page:  # noqa: F811 (the fixture imported above)
     url, _, _ = system
     return Page(browser, url)
+
+
+def test_a_new_episode_starts_with_empty_corrections_and_the_history_on_it(system, page):
+    """The corrections box kept "4:1" from the previous episode, and the History stayed on the
+    review the page first showed. Now a new review empties the box and the History follows it;
+    a review the person chose in the History stays chosen until the next review starts."""
+    first = page.review()
+    assert page.chosen_history() == first
+    # A correction of step 1, taken: the box keeps what was sent while this review is open.
+    url, tmp_path, _ = system
+    plan = json.load(urllib.request.urlopen(url + "api/state", timeout=10))["plan"]
+    sent = f"1:{(plan['actions'][0] + 2) % 5}"  # another action than the plan's
+    box = page.driver.find_element("id", "corrections")
+    box.clear()
+    box.send_keys(sent)
+    page.driver.find_element("id", "correct").click()
+    page.wait.until(lambda _: f"corrections of plan {plan['plan_id']} taken" in page.text("message"))
+    page.wait.until(lambda _: page.plan_id() > plan["plan_id"])
+    assert box.get_attribute("value") == sent
+
+    second = page.next_episode()
+    assert second != first
+    assert box.get_attribute("value") == "", "the last episode's corrections were left in the box"
+    page.wait.until(lambda _: page.chosen_history() == second)
+    shoot(page.driver, tmp_path, "review_page_next_episode_fresh.png")
+
+    # The person looks at the earlier review: a new plan of this one does not take it away.
+    row = next(r for r in page.driver.find_elements("css selector", "#reviews tr.review") if r.text.startswith(first))
+    row.click()
+    page.wait.until(lambda _: page.chosen_history() == first)
+    shown = page.plan_id()
+    page.driver.find_element("id", "reject").click()
+    page.wait.until(lambda _: page.plan_id() > shown and not page.off("reject"))
+    assert page.chosen_history() == first
+    # The next review is followed again.
+    third = page.next_episode()
+    page.wait.until(lambda _: page.chosen_history() == third)
 
 
 def test_the_states_asked_about_come_in_ascending_order(system, page):
