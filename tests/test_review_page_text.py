@@ -8,8 +8,12 @@ Screenshots go to the test's directory (and to LWM_SCREENSHOTS)."""
 
 from __future__ import annotations
 
+import contextlib
 import json
+import os
+import signal
 import urllib.request
+from collections.abc import Iterator
 
 import pytest
 
@@ -21,6 +25,7 @@ from test_review_page import (  # noqa: E402 (after the skips: it needs Chromium
     approve,
     approve_until_reported,
     browser,  # noqa: F401 (the headless Chromium fixture)
+    node_pid,
     shoot,
     start_page_system,
 )
@@ -152,6 +157,42 @@ def test_the_states_asked_about_come_in_ascending_order(system, page):
     shown = page.plan_id()
     page.driver.find_element("id", "stop-teaching").click()
     page.wait.until(lambda _: page.plan_id() > shown and not page.driver.find_element("id", "labels").is_displayed())
+
+
+@contextlib.contextmanager
+def stopped(pid: int) -> Iterator[None]:
+    """A node held (SIGSTOP) meanwhile, and let go (SIGCONT) after."""
+    os.kill(pid, signal.SIGSTOP)
+    try:
+        yield
+    finally:
+        os.kill(pid, signal.SIGCONT)
+
+
+def test_an_answer_kept_while_the_planner_starts_stops_saying_so_once_the_review_opens(system, page):
+    """An answer sent while a restarted planner has not opened its review yet is kept for it ("kept
+    until review ... opens (the planner is starting)"). That stayed on the page after the review's
+    next plan came. The environment is held while the planner restarts, so the planner cannot open
+    the review until the test lets it go: the answer is kept every time, not by chance."""
+    _, tmp_path, launcher = system
+    review, shown = page.review(), page.plan_id()
+    planner = node_pid(launcher, "lwm_nodes.planner_node")
+    with stopped(node_pid(launcher, "lwm_nodes.env_node")):
+        os.kill(planner, signal.SIGKILL)
+        page.wait.until(lambda _: node_pid(launcher, "lwm_nodes.planner_node") not in (None, planner))
+        # The restarted planner is up (it says so on /diagnostics) but has no review without the game.
+        page.wait.until(
+            lambda _: "the planner stopped and started again; it says: waiting for an episode" in page.text("notice")
+        )
+        page.driver.find_element("id", "reject").click()
+        page.wait.until(lambda _: f"kept until review {review} opens (the planner is starting)" in page.text("message"))
+        shoot(page.driver, tmp_path, "review_page_answer_kept.png", "message")
+    # The review opens, takes the kept reject, and its next plan comes: the words no longer hold.
+    page.wait.until(lambda _: page.plan_id() > shown)
+    said = page.text("message")
+    assert "kept until" not in said and f"opened review {review}" in said, said
+    assert page.driver.find_element("id", "message").value_of_css_property("color") == "rgba(102, 102, 102, 1)"
+    shoot(page.driver, tmp_path, "review_page_answer_kept_then_taken.png", "message")
 
 
 def test_the_boards_symbols_and_marks_have_a_key(system, page):
