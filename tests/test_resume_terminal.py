@@ -2,7 +2,8 @@
 the launcher runs in a pseudo-terminal, as a person's shell runs it, so its human node is the
 interactive terminal review. The person reviews the next episode, rejects its first plan and
 stops the run with Ctrl-C; the resumed run shows that review's plan 2 and the prompt, without a
-new `n` and without saying the episode "started"."""
+new `n` and without saying the episode "started"; its environment, killed then, returns to that
+episode as well."""
 
 from __future__ import annotations
 
@@ -103,9 +104,14 @@ def test_resume_lands_on_the_review_that_was_open(tmp_path):
         assert "resuming the run in" in said
         assert "episode newall-test:0:1 started" not in said  # nothing was started: it was resumed
         assert "review newall-test:0:0" not in said.split("nodes ready", 1)[-1]  # not the earlier review
+        # The environment killed now comes back to this episode too, not to the first seed's.
+        found = subprocess.run(["pgrep", "-P", str(resumed.proc.pid), "-f", "lwm_nodes.env_node"], capture_output=True)
+        os.kill(int(found.stdout.split()[0]), signal.SIGKILL)
+        assert resumed.said("env exited with -9; restart 1", after=at), resumed.text()[-3000:]
+        back = lambda: (run / "env.log").read_text().count("returns to episode newall-test:0:1") == 2  # noqa: E731
+        assert wait_for(back, timeout=120), (run / "env.log").read_text()[-2000:]
     finally:
         status = resumed.stop()
         (tmp_path / "resumed.txt").write_text(resumed.text())
     assert status == 0, resumed.text()[-3000:]
-    assert "returns to episode newall-test:0:1" in (run / "env.log").read_text()
     assert "review newall-test:0:1 resumed from the ledger at plan 2" in (run / "planner.log").read_text()
