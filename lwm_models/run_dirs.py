@@ -22,6 +22,7 @@ LEDGER_FILE = "ledger.sqlite"
 STATE_FILE = "world_model_state.json"  # the world-model server's manual and its version
 OLD_STATE_FILE = "simulator_state.json"  # its name in runs made before the server was named so
 KEYS_FILE = "reviewer_keys.json"
+EPISODE_FILE = "episode.json"  # the episode the environment plays, which a restart or --resume returns to
 DEFAULT_LEDGER = Path(os.environ.get("LWM_LEDGER", LOGS / LATEST / LEDGER_FILE))
 
 

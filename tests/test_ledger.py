@@ -76,6 +76,13 @@ def test_label_request_view_orders_states_by_episode():
     assert len(view["frames"]) == 3
 
 
+def test_label_request_view_of_chosen_states_orders_them_by_number():
+    """A request of chosen states (the board before each comes with it) is walked by state number,
+    as the terminal lists them: the page walked it by episode ("state 2", then "state 0")."""
+    chosen = {**REQUEST, "trajectories": [3, 1, 0], "steps": [4, 2, 7], "previous": [OBS, OBS, OBS]}
+    assert label_request_view(chosen)["order"] == [0, 1, 2]
+
+
 @pytest.mark.parametrize(
     ("states", "actions", "error"),
     [

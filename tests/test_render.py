@@ -29,11 +29,13 @@ from lwm_models.messenger.constants import (
 )
 from lwm_models.messenger.render import (
     IDENTITY_LETTERS,
+    board,
     legend,
     render_ascii,
     render_png,
     render_trajectory_gif,
     render_trajectory_png,
+    symbol_key,
 )
 
 ANSI = re.compile(r"\x1b\[[0-9;]*m")
@@ -133,6 +135,19 @@ def test_overlaps_show_the_avatar_or_a_star_and_the_legend_names_them():
     text = legend(grid)
     assert "* dog+queen" in text
     assert "(on ball)" in text
+
+
+def test_a_legend_for_later_boards_names_both_avatar_symbols_and_the_page_key_has_their_colours():
+    env = make_env()
+    obs, _ = env.reset(seed=0, options={"start": 0})
+    assert legend(obs, every_avatar=True).endswith("@ you  & you, carrying the message")
+    assert "& you" not in legend(obs)  # a board's own legend names what it shows
+    key = {k["symbol"]: k for k in symbol_key()}
+    assert key["&"] == {"symbol": "&", "colour": "#ffc800", "words": "you, carrying the message"}
+    grid = np.zeros((GRID, GRID, 4), dtype=np.uint8)
+    grid[5, 6, AVATAR_CHANNEL] = AVATAR_WITH_MESSAGE
+    cell = next(c for c in board(grid) if c["symbol"] == "&")
+    assert cell["colour"] == key["&"]["colour"]  # the key's chip is the board's cell
 
 
 def test_no_avatar_after_death():

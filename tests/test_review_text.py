@@ -14,6 +14,8 @@ def test_a_plan_tells_its_outcome_once_with_a_legend_and_its_ends():
     text = plan_text(plan)
     assert "the plan: return +1.50, wins at step 10" in text and "2 sampled futures: 100% die" in text
     assert "board: A airplane  L ball  R robot  @ you" in text and "actions: 0 up  1 down  2 left" in text
+    # The start shows '@'; the legend names '&' too, which the boards after the pick-up show.
+    assert "@ you  & you, carrying the message\n" in text
     assert "7 down (picks up the message)" in text and "10 right (wins)" in text
     assert text.count("+---") == 4  # two boards: the start and the last
     assert plan_text(plan, "all").count("+---") == 2 * len(plan["observations"])
@@ -29,6 +31,7 @@ def test_a_plan_that_dies_says_where():
 def test_a_label_request_state_is_shown_beside_the_one_before_it():
     request = messages.schema("label_request")["examples"][0]
     alone = state_text(request, 0)
+    assert "@ you  & you, carrying the message" in alone  # the board a step before may show the other
     assert alone.startswith("state 0 of 3") and alone.count("+---") == 2 and "l 0:ACTION" in alone
     paired = state_text(request, 1, request["observations"][0])
     assert "a step before" in paired and paired.count("+---") == 4 and "+   +---" in paired  # side by side

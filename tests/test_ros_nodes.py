@@ -503,7 +503,8 @@ def test_only_a_trusted_reviewer_can_approve(system, tmp_path):
 
 def test_the_terminal_review_shows_answers_refusals_and_takes_a_correction(system):
     """A person at the terminal: starts an episode (n SEED), sees a compact plan with a legend,
-    is told why a correction is refused, and a correction of step 1 makes the next plan take it."""
+    is told why a correction is refused, and a correction of step 1 makes the next plan take it.
+    The legend names both avatar symbols: the start shows '@', a board after the pick-up '&'."""
     with terminal(system, "terminal") as (type_line, said, log_path):
         type_line("n 21")
         assert said("episode newall-test:0:21 started"), log_path.read_text()[-2000:]
@@ -511,6 +512,7 @@ def test_the_terminal_review_shows_answers_refusals_and_takes_a_correction(syste
         plan = wait_for(lambda: (p := latched(system, "/planner/plan"))["review_id"].endswith(":21") and p)
         text = log_path.read_text()
         assert "board: " in text and "actions: 0 up  1 down" in text and "steps: 1 " in text
+        assert "@ you  & you, carrying the message" in text  # the legend names what later boards show
         type_line("c 99:3")
         assert said("REFUSED by the planner: step 99 is not in the plan"), log_path.read_text()[-2000:]
         wanted = (plan["actions"][0] + 2) % 5

@@ -78,7 +78,8 @@ def plan_text(plan: dict, frames: str = "ends") -> str:
     if frames == "none":
         return "\n".join(lines)
     first = np.asarray(plan["observations"][0], dtype=np.uint8)
-    lines += [f"board: {board_legend(first)}", ACTIONS_KEY]
+    # Both avatar symbols are named: the start shows '@', a later board '&' once the message is carried.
+    lines += [f"board: {board_legend(first, every_avatar=True)}", ACTIONS_KEY]
     for entry in plan.get("understood", []):  # what the world model made of the manual
         lines.append(f"imagined {entry['identity']}: {describe(entry)}")
     if plan.get("roles"):
@@ -110,7 +111,7 @@ def state_text(request: dict, k: int, before: Sequence | None = None) -> str:
     obs = np.asarray(request["observations"][k], dtype=np.uint8)
     head = (
         f"state {k} of {len(request['observations'])} (imagined episode {request['trajectories'][k]}, "
-        f"step {request['steps'][k]}); board: {board_legend(obs)}"
+        f"step {request['steps'][k]}); board: {board_legend(obs, every_avatar=True)}"
     )
     parts = [head]
     if before is not None:

@@ -14,7 +14,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from ..ledger import headline
-from ..messenger.render import board, identity_style
+from ..messenger.render import board, identity_style, symbol_key
 from ..text.parser import parse_description
 from .review_text import progress_text
 from .understood import believed, describe
@@ -64,7 +64,7 @@ def plan_view(plan: dict) -> dict:
         imagined.append({"identity": entry["identity"], "letter": letter, "colour": colour, "said": describe(entry)})
     believes = believed(plan["roles"]) if plan.get("roles") else None
     return {**plan, "frames": frames(plan["observations"]), "legend": legend(plan["manual"], plan.get("roles")),
-            "imagined": imagined, "believes": believes}  # fmt: skip
+            "imagined": imagined, "believes": believes, "board_key": symbol_key()}  # fmt: skip
 
 
 def progress_view(progress: dict) -> dict:
@@ -73,28 +73,36 @@ def progress_view(progress: dict) -> dict:
 
 
 def report_view(report: dict) -> dict:
-    """An execution report with the real and the planned frames side by side."""
+    """An execution report with the real and the planned frames side by side, and the key of the
+    symbols that are no identity's letter (the avatar, carrying the message or not)."""
     return {
         **report,
         "real_frames": frames(report.get("observations", [])),
         "planned_frames": frames(report.get("planned_observations", [])),
+        "board_key": symbol_key(),
     }
 
 
 def label_request_view(request: dict) -> dict:
     """A label request with its states' frames, `before[k]`: the state of the same imagined
     trajectory one step earlier (-1 at its start: a person judges movement from two frames), and
-    `order`: the states trajectory by trajectory, step by step, the order a person follows an
-    episode in (the request lists them step by step across trajectories)."""
+    `order`, the order the page walks the states in. A request of chosen states (it carries the
+    board before each, `previous`): by state number, as the terminal lists them and the labels
+    name them, each state standing alone. A whole round: trajectory by trajectory, step by step,
+    the order a person follows an episode in (the request lists them step by step across
+    trajectories)."""
     steps, trajectories = request["steps"], request["trajectories"]
     at = {(traj, step): k for k, (traj, step) in enumerate(zip(trajectories, steps, strict=True))}
     previous = request.get("previous")  # a request of chosen states carries the board before each
+    order = list(range(len(steps)))
+    if previous is None:
+        order.sort(key=lambda k: (trajectories[k], steps[k]))
     return {
         **request,
         "frames": frames(request["observations"]),
         "before": [at.get((traj, step - 1), -1) for traj, step in zip(trajectories, steps, strict=True)],
         "before_frames": None if previous is None else [None if o is None else frames([o])[0] for o in previous],
-        "order": sorted(range(len(steps)), key=lambda k: (trajectories[k], steps[k])),
+        "order": order,
     }
 
 

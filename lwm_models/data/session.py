@@ -43,6 +43,13 @@ class GameSession:
             if split is not None or index is not None:
                 self.select(split or self.split, self.index if index is None else index)
             episode = Episode(self.split, self.index, seed)
+        return self.resume(episode)
+
+    def resume(self, episode: Episode) -> dict:
+        """Play `episode` from its start again, the same attempt (an environment restarted, or a
+        run continued, returns to the episode under review rather than to its first seed)."""
+        if (episode.split, episode.index) != (self.split, self.index):
+            self.select(episode.split, episode.index)
         self.episode, self.seed = episode, episode.seed
         self.episode_id = episode.id
         self.obs, self.info = self.env.reset(seed=episode.seed)

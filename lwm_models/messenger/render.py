@@ -231,9 +231,30 @@ def render_ascii(obs: np.ndarray, color: bool = False) -> str:
     return "\n".join(lines)
 
 
-def legend(obs: np.ndarray) -> str:
+# What the symbols that are no identity's letter stand for, in the terminal's legend and the page's key.
+SYMBOL_WORDS: dict[str, str] = {
+    "avatar": "you",
+    "avatar_message": "you, carrying the message",
+    "overlap": "two entities on one cell",
+}
+_KEY_SYMBOLS = {"avatar": AVATAR_LETTER, "avatar_message": AVATAR_MESSAGE_LETTER, "overlap": OVERLAP_LETTER}
+
+
+def symbol_key() -> list[dict]:
+    """The board's symbols that are no identity's letter, as a page draws them in its key: symbol,
+    colour ("#rrggbb") and what it stands for."""
+    colours = {"avatar": _RGB_AVATAR, "avatar_message": _RGB_AVATAR_MESSAGE, "overlap": _RGB_OVERLAP}
+    return [
+        {"symbol": _KEY_SYMBOLS[key], "colour": _hex(colours[key]), "words": words}
+        for key, words in SYMBOL_WORDS.items()
+    ]
+
+
+def legend(obs: np.ndarray, every_avatar: bool = False) -> str:
     """The symbols present on the board, e.g. "D dog  Q queen  L ball  @ you"; overlaps are
-    named too ("@ you (on dog)", "* dog+queen") because the board shows one symbol per cell."""
+    named too ("@ you (on dog)", "* dog+queen") because the board shows one symbol per cell.
+    every_avatar: name both avatar symbols ('@' and '&') even when this board shows one, for a
+    legend that serves the boards after it too (a plan's later boards may show the other)."""
     cells = [cell for row in _cells(_as_grid(obs)) for cell in row]
     parts: list[str] = []
     seen: set[str] = set()
@@ -246,15 +267,20 @@ def legend(obs: np.ndarray) -> str:
                 parts.append(f"{IDENTITY_LETTERS[name]} {name}")
     for cell in cells:
         if cell.colour_key in ("avatar", "avatar_message"):
-            what = "you" if cell.colour_key == "avatar" else "you, carrying the message"
+            what = SYMBOL_WORDS[cell.colour_key]
             if cell.hidden:
                 what += " (on " + "+".join(cell.hidden) + ")"
             parts.append(f"{cell.symbol} {what}")
     for cell in cells:
         if cell.colour_key == "overlap":
             parts.append(f"{OVERLAP_LETTER} {'+'.join(cell.hidden)}")
-    if not any(cell.colour_key in ("avatar", "avatar_message") for cell in cells):
+    shown = {cell.colour_key for cell in cells}
+    if not shown & {"avatar", "avatar_message"}:
         parts.append("(no avatar)")
+    if every_avatar:
+        parts += [
+            f"{_KEY_SYMBOLS[key]} {SYMBOL_WORDS[key]}" for key in ("avatar", "avatar_message") if key not in shown
+        ]
     return "  ".join(parts)
 
 

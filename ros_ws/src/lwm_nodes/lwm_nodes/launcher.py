@@ -148,6 +148,12 @@ def default_nodes(
     return nodes
 
 
+def episode_file(run_dir: Path) -> Path:
+    """Where a run's environment keeps the episode it plays (lwm_nodes/env_node.py): a restarted
+    environment, or the run continued with --resume, returns to the episode under review."""
+    return run_dir.resolve() / run_dirs.EPISODE_FILE
+
+
 def fleet(nodes: list[NodeSpec], agents: int, seed: int, log_dir: Path) -> list[NodeSpec]:
     """The single agent's nodes made a fleet of `agents`: one world-model server serving them all
     (one model, its batches shared), and for each agent (agent1, agent2, ...) its environment,
@@ -176,6 +182,7 @@ def fleet(nodes: list[NodeSpec], agents: int, seed: int, log_dir: Path) -> list[
             params = dict(spec.params)
             if spec.role == "env":
                 params["seed"] = str(seed + i)
+                params["episode_file"] = str(episode_file(log_dir / agent))
             elif spec.role == "planner":
                 params["ledger"] = str(log_dir / agent / run_dirs.LEDGER_FILE)
             elif spec.role == "human" and "page_port" in params:  # agent K's own review page, on PORT+K
@@ -344,7 +351,9 @@ def given_parameters(
     trust = chosen(keys_file=keys_file, trusted=args.trusted or None)
     texts = ",".join(args.texts) if args.texts else None
     given = {
-        "env": chosen(split=args.split, index=args.index, seed=args.seed, texts=texts),
+        "env": chosen(
+            split=args.split, index=args.index, seed=args.seed, texts=texts, episode_file=episode_file(args.log_dir)
+        ),
         "world_model": chosen(checkpoint=args.checkpoint, state=state, **trust),
         "planner": chosen(
             ledger=ledger,
