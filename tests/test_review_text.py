@@ -7,6 +7,7 @@ import copy
 
 from lwm_models import messages
 from lwm_models.agent.review_text import outcome, plan_text, state_text
+from lwm_models.agent.review_view import plan_view
 
 
 def test_a_plan_tells_its_outcome_once_with_a_legend_and_its_ends():
@@ -136,3 +137,6 @@ def test_a_plan_that_repeats_a_rejected_one_says_what_can_change_it():
         "To change the plan, correct a step (c STEP:ACTION), teach it (i) or rewrite the manual (m)"
     ]
     assert "rejected" not in plan_text(messages.schema("plan")["examples"][0])
+    page = plan_view(plan)["repeats_text"]  # the page's words, for its buttons rather than commands
+    assert page.startswith("The same moves as plan 2, which you rejected") and "correct a step, teach it" in page
+    assert plan_view(messages.schema("plan")["examples"][0])["repeats_text"] == ""

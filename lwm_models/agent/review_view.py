@@ -55,6 +55,13 @@ def legend(descriptions: Sequence[str], roles: Sequence[dict] | None = None) -> 
     return out
 
 
+# What the page says of a plan that makes a rejected plan's moves again (`review_text.REPEATS`).
+REPEATS_ON_PAGE = (
+    "The same moves as plan {plan}, which you rejected: rejecting alone changes nothing the agent has learnt. "
+    "To change the plan, correct a step, teach it or rewrite the manual."
+)
+
+
 def plan_view(plan: dict) -> dict:
     """A plan message with its frames, its manual's legend (as the parser reads the text) and what
     the world model imagined of each entity (as the plan and its futures show it)."""
@@ -63,8 +70,9 @@ def plan_view(plan: dict) -> dict:
         letter, colour = identity_style(entry["identity"])
         imagined.append({"identity": entry["identity"], "letter": letter, "colour": colour, "said": describe(entry)})
     believes = believed(plan["roles"]) if plan.get("roles") else None
+    repeats = REPEATS_ON_PAGE.format(plan=plan["repeats"]) if plan.get("repeats") else ""
     return {**plan, "frames": frames(plan["observations"]), "legend": legend(plan["manual"], plan.get("roles")),
-            "imagined": imagined, "believes": believes, "board_key": symbol_key()}  # fmt: skip
+            "imagined": imagined, "believes": believes, "board_key": symbol_key(), "repeats_text": repeats}  # fmt: skip
 
 
 def progress_view(progress: dict) -> dict:
