@@ -112,7 +112,8 @@ def test_the_launcher_puts_each_agent_in_its_namespace_with_its_seed_ledger_and_
         "--params-file",
         str(CONFIG_DIR / "messenger_env.yaml"),
     ]
-    assert command[-2:] == ["-p", "seed:=7"]  # after the file: it overrides the file's seed
+    seed = command.index("seed:=7")  # after the file: it overrides the file's seed
+    assert command[seed - 1] == "-p" and seed > command.index(str(CONFIG_DIR / "messenger_env.yaml"))
     # The first reviewer speaks to the whole fleet; the others review without speaking.
     assert specs["agent1/human"].params["manual_topic"] == "/feedback/manual"
     assert "language" not in specs["agent2/human"].params and "manual_topic" not in specs["agent2/human"].params

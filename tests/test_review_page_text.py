@@ -19,6 +19,7 @@ import pytest
 
 pytest.importorskip("rclpy")
 pytest.importorskip("selenium.webdriver")
+from selenium.common.exceptions import NoSuchElementException, StaleElementReferenceException  # noqa: E402
 from selenium.webdriver.common.keys import Keys  # noqa: E402
 from selenium.webdriver.support.ui import WebDriverWait  # noqa: E402
 from test_review_page import (  # noqa: E402 (after the skips: it needs Chromium and Selenium)
@@ -73,14 +74,46 @@ class Page:
 
     def chosen_history(self) -> str:
         """The review the History shows the records of (its chosen row)."""
-        self.wait.until(lambda _: self.driver.find_elements("css selector", "#reviews tr.chosen"))
-        return self.driver.find_element("css selector", "#reviews tr.chosen td").text
+
+        def read(_) -> str | bool:
+            try:  # the History is drawn anew as records come: a row found may be gone when read
+                return self.driver.find_element("css selector", "#reviews tr.chosen td").text
+            except (NoSuchElementException, StaleElementReferenceException):
+                return False
+
+        return self.wait.until(read)
 
 
 @pytest.fixture()
 def page(system, browser) -> Page:  # noqa: F811 (the fixture imported above)
     url, _, _ = system
     return Page(browser, url)
+
+
+def test_a_plan_that_repeats_a_rejected_one_says_what_can_change_it(system, page):
+    """A reject changes nothing the agent has learnt: when the plan after it makes the same moves,
+    the page says so under the plan's title and names what can change it; a plan that moves
+    otherwise says nothing of the kind. (In this system's seeds the plans after a reject move
+    otherwise; test_review_loop.py has plans that repeat, and test_review_text.py the words.)"""
+    url, tmp_path, _ = system
+    seen = set()
+    for _ in range(6):
+        before = json.load(urllib.request.urlopen(url + "api/state", timeout=10))["plan"]
+        page.driver.find_element("id", "reject").click()
+        shown = before["plan_id"]
+        page.wait.until(lambda _, shown=shown: page.plan_id() > shown and not page.off("reject"))
+        now = json.load(urllib.request.urlopen(url + "api/state", timeout=10))["plan"]
+        same = now["actions"] == before["actions"]
+        said = page.text("repeats")
+        if same:
+            assert said.startswith(f"The same moves as plan {before['plan_id']}, which you rejected"), said
+            assert "correct a step, teach it or rewrite the manual" in said
+            shoot(page.driver, tmp_path, "review_page_plan_repeats.png")
+        else:
+            assert said == "", said
+        seen.add(same)
+        if seen == {True, False}:
+            break
 
 
 def test_a_new_episode_starts_with_empty_corrections_and_the_history_on_it(system, page):
@@ -227,29 +260,3 @@ def test_the_boards_symbols_and_marks_have_a_key(system, page):
         "const s = document.getElementById('report-step'); s.value = s.max; s.dispatchEvent(new Event('input'))"
     )
     shoot(page.driver, tmp_path, "review_page_report_key.png", "report")
-
-
-def test_a_plan_that_repeats_a_rejected_one_says_what_can_change_it(system, page):
-    """A reject changes nothing the agent has learnt: when the plan after it makes the same moves,
-    the page says so under the plan's title and names what can change it; a plan that moves
-    otherwise says nothing of the kind. (In this system's seeds the plans after a reject move
-    otherwise; test_review_loop.py has plans that repeat, and test_review_text.py the words.)"""
-    url, tmp_path, _ = system
-    seen = set()
-    for _ in range(6):
-        before = json.load(urllib.request.urlopen(url + "api/state", timeout=10))["plan"]
-        page.driver.find_element("id", "reject").click()
-        shown = before["plan_id"]
-        page.wait.until(lambda _, shown=shown: page.plan_id() > shown and not page.off("reject"))
-        now = json.load(urllib.request.urlopen(url + "api/state", timeout=10))["plan"]
-        same = now["actions"] == before["actions"]
-        said = page.text("repeats")
-        if same:
-            assert said.startswith(f"The same moves as plan {before['plan_id']}, which you rejected"), said
-            assert "correct a step, teach it or rewrite the manual" in said
-            shoot(page.driver, tmp_path, "review_page_plan_repeats.png")
-        else:
-            assert said == "", said
-        seen.add(same)
-        if seen == {True, False}:
-            break
