@@ -21,7 +21,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from rclpy.signals import SignalHandlerOptions
 from std_msgs.msg import String
 
-from lwm_models import messages
+from lwm_models import messages, signing
 
 # Manuals and statuses are state, not events: a node that starts late must still get the latest.
 LATCHED = QoSProfile(
@@ -169,6 +169,13 @@ class JsonNode(Node):
                 msg_id = messages.msg_id_of(msg.data)
                 payload = messages.parse(kind, msg.data)
                 done = handler(payload)
+            except signing.ReplayedSignature as exc:
+                # A node restarted is sent again what it took before its crash (transient-local
+                # topics): refused, since it was taken once, but nobody did anything wrong.
+                self.get_logger().info(f"{where}: {exc}")
+                if acks:
+                    self.acknowledge(where, msg_id, False, messages.plain_reason(exc), msg.data)
+                return
             except Exception as exc:  # a bad message must never take the node down
                 self.report_error(where, exc, msg.data)
                 if acks:
