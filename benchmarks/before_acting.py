@@ -47,9 +47,10 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from lwm_models.data.splits import load_split  # noqa: E402
-from lwm_models.messenger.constants import IDENTITIES, ROLES  # noqa: E402
+from lwm_models.messenger.constants import DEFAULT_MAX_STEPS, IDENTITIES, ROLES  # noqa: E402
 from lwm_models.text.pools import DescriptionPools  # noqa: E402
 from lwm_models.text.stress import fresh_pools, load_fresh  # noqa: E402
+from lwm_models.world.base import losses  # noqa: E402
 from lwm_models.world.checkpoint import load_checkpoint  # noqa: E402
 from lwm_models.world.evaluate import ImaginationScore  # noqa: E402
 from lwm_models.world.frozen_text import FrozenTextEncoder  # noqa: E402
@@ -188,12 +189,12 @@ def manuals(source: str, games, rng, texts_files) -> list[tuple[list[str], list[
     return out
 
 
-def _add_cross_entropy(sums: dict, predictions: dict) -> None:
-    """Per kind (obs, reward, done): add the negative log-likelihood of the true tokens and their count."""
-    for kind, (log_probs, targets, valid) in predictions.items():
-        true = log_probs.gather(-1, targets[..., None]).squeeze(-1)
+def _add_cross_entropy(sums: dict, out) -> None:
+    """Per kind (obs, reward, done): add an episode's summed cross-entropy and its token count
+    (`losses`' sums and counts)."""
+    for kind in out.sums:
         nll, n = sums.get(kind, (0.0, 0))
-        sums[kind] = (nll - float((true * valid).sum()), n + int(valid.sum()))
+        sums[kind] = (nll + float(out.sums[kind]), n + int(out.counts[kind]))
 
 
 def _total(sums: dict) -> float:
@@ -217,9 +218,9 @@ def world_model_figures(reader: Reader, source: str, data_root: Path, episodes: 
         tokens, lengths = data.segments(np.array([e]), np.zeros(1, dtype=np.int64))
         texts = [data.texts[int(i)] for i in data.manuals[e]]
         manual = model.on_board(model.read_manual(texts, encoder), tokens[:, torch.as_tensor(ID_SLOTS)])
-        _add_cross_entropy(prior, model.prior_predictions(tokens, lengths, manual))
-        _add_cross_entropy(forced, model.predictions(tokens, lengths, data.manual_batch(np.array([e]))))
-        actions = np.zeros((1, 32), dtype=np.int64)
+        _add_cross_entropy(prior, losses(model.prior_predictions(tokens, lengths, manual)))
+        _add_cross_entropy(forced, model(tokens, lengths, data.manual_batch(np.array([e]))))
+        actions = np.zeros((1, DEFAULT_MAX_STEPS), dtype=np.int64)
         actions[0, : len(ep.actions) - 1] = ep.actions[1:]
         score.add(imagine(model, manual, ep.observations[0][None], 1, actions, seed=seed + int(e)), [ep])
     m = score.metrics()

@@ -101,18 +101,18 @@ def fitting_texts(texts: list[Path], seed: int) -> dict[str, dict[tuple, list[st
     return {s: {t: list(dict.fromkeys(v)) for t, v in by.items()} for s, by in sources.items() if by}
 
 
-def cached_sentence_reader(work: Path, texts, truth_of, known_of, weights, folds, cfg, args):
+def cached_sentence_reader(work: Path, texts, truth_of, known_of, weights, folds, cfg, seed: int):
     """The sentence reader and its held-out readings: trained (about 20 minutes on two cores), or
     taken from `work` where a run on the same text, seed and settings left them."""
     key = hashlib.sha256(json.dumps([texts, [truth_of[n].tolist() for n in truth_of], weights.round(8).tolist(),
-                                     str(cfg), args.seed]).encode()).hexdigest()[:16]  # fmt: skip
+                                     str(cfg), seed]).encode()).hexdigest()[:16]  # fmt: skip
     work.mkdir(parents=True, exist_ok=True)
     reader_file, held_file = work / f"sentence-{key}.safetensors", work / f"held-out-{key}.npz"
     if reader_file.is_file() and held_file.is_file():
         print(f"sentence reader from {reader_file}", flush=True)
         found = np.load(held_file)
         return SentenceReader.load(reader_file), {name: found[name] for name in truth_of}
-    reader, held_out = fit_sentence_reader(texts, truth_of, known_of, weights, folds, cfg, args.seed,
+    reader, held_out = fit_sentence_reader(texts, truth_of, known_of, weights, folds, cfg, seed,
                                            progress=lambda m: print(m, flush=True))  # fmt: skip
     reader.save(reader_file)
     np.savez(held_file, **held_out)
@@ -181,7 +181,8 @@ def main() -> int:
     if not args.words_only:  # the keyword parser alone has no sentence reader
         cfg = SentenceReaderConfig(steps=args.sentence_steps)
         folds = np.random.default_rng(args.seed).integers(cfg.folds, size=len(texts))
-        sentence, held_out = cached_sentence_reader(args.work, texts, truth_of, known_of, weights_a, folds, cfg, args)
+        fitted = (texts, truth_of, known_of, weights_a, folds, cfg, args.seed)
+        sentence, held_out = cached_sentence_reader(args.work, *fitted)
     plain = evidence_for(model, encoder, texts)
     calibration = Calibration(fit_identity_rates(plain, [t[0] for t in truth], weights), {}, sentence)
     for name, lp in held_out.items():

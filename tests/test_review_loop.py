@@ -177,6 +177,15 @@ class LoopHarness:
             config,
         )
 
+    def start(self) -> dict:
+        """Episode 0 of the game, with its own manual in the world-model server, handed to the
+        review loop (which then makes its first plan); returns the episode's first state."""
+        state = self.session.reset(0)
+        self.sim.take_env_manual(self.session.manual()["descriptions"], state["episode_id"])
+        self.loop.on_status(self.sim.status())
+        self.loop.on_state(state)
+        return state
+
     def _add(self, kind: str, box: list):
         def publish(payload: dict) -> None:
             messages.validate(kind, {"version": 1, **payload})  # what a node would send
@@ -229,10 +238,7 @@ def test_the_scripted_reviewer_speaks_first_with_the_true_manual_in_other_words(
 def test_review_loop_manual_labels_and_closed_loop_execution(encoder):
     sim = WorldModelServer(encoder=encoder)
     h = LoopHarness(sim, Budget(iterations=1, episodes=2, grad_steps=2))
-    state = h.session.reset(0)
-    sim.take_env_manual(h.session.manual()["descriptions"], state["episode_id"])
-    h.loop.on_status(sim.status())
-    h.loop.on_state(state)
+    state = h.start()
     first = h.wait(h.plans, 1)
     assert first["manual_version"] == 1 and first["reason"] == "start"
     # Before the plan, the agent taught itself from the manual, and said so round by round: first
@@ -301,10 +307,7 @@ def test_a_stop_ends_the_execution_before_the_agent_s_next_move(encoder):
         return h.session.step(p["action"])
 
     h = LoopHarness(sim, Budget(iterations=1, episodes=2, grad_steps=2), step=gated_step)
-    state = h.session.reset(0)
-    sim.take_env_manual(h.session.manual()["descriptions"], state["episode_id"])
-    h.loop.on_status(sim.status())
-    h.loop.on_state(state)
+    h.start()
     plan = h.wait(h.plans, 1)
     base = {"review_id": plan["review_id"], "plan_id": plan["plan_id"]}
     with pytest.raises(FeedbackError, match="nothing under way to stop"):
@@ -331,12 +334,9 @@ def test_an_answer_re_plans_and_teaches_again_only_when_it_changes_what_the_agen
     makes the agent learn again under the corrected reading, which the next plan says."""
     sim = WorldModelServer(encoder=encoder)
     h = LoopHarness(sim, Budget(iterations=1, episodes=2, grad_steps=2))
-    state = h.session.reset(0)
-    words = h.session.manual()["descriptions"]
-    sim.take_env_manual(words, state["episode_id"])
-    h.loop.on_status(sim.status())
-    h.loop.on_state(state)
+    h.start()
     first = h.wait(h.plans, 1)
+    words = h.session.manual()["descriptions"]
     taught = len(h.progress)
     entity = first["roles"][0]
     confirm = {"entity": entity["identity"], "field": "role", "value": entity["role"]}
@@ -377,10 +377,7 @@ def test_a_reject_that_changes_nothing_says_so(encoder):
     that moves otherwise does not. Ten rejects: with these seeds some plans repeat and some do not."""
     sim = WorldModelServer(encoder=encoder)
     h = LoopHarness(sim, Budget(iterations=1, episodes=2, grad_steps=2))
-    state = h.session.reset(0)
-    sim.take_env_manual(h.session.manual()["descriptions"], state["episode_id"])
-    h.loop.on_status(sim.status())
-    h.loop.on_state(state)
+    h.start()
     plans = [h.wait(h.plans, 1)]
     for k in range(2, 12):
         h.loop.on_feedback({"review_id": plans[-1]["review_id"], "plan_id": plans[-1]["plan_id"], "decision": "reject"})
