@@ -34,6 +34,7 @@ if not (CHROMIUM and DRIVER):
         allow_module_level=True,
     )
 webdriver = pytest.importorskip("selenium.webdriver")
+from selenium.common.exceptions import TimeoutException  # noqa: E402
 from selenium.webdriver.chrome.service import Service  # noqa: E402
 from selenium.webdriver.common.action_chains import ActionChains  # noqa: E402
 from selenium.webdriver.common.keys import Keys  # noqa: E402
@@ -94,6 +95,23 @@ def browser():
     driver = webdriver.Chrome(service=Service(DRIVER), options=opts)
     yield driver
     driver.quit()
+
+
+class PageWait(WebDriverWait):
+    """A wait that, when it times out, says what the page showed: which step of a long test failed
+    is then plain from the test's output alone (CI prints no screenshot)."""
+
+    SHOWN = ("plan-title", "message", "manual-message", "question-message", "labels-title", "label-message",
+             "episode-message", "status", "reviewer")  # fmt: skip
+
+    def until(self, method, message: str = ""):
+        try:
+            return super().until(method, message)
+        except TimeoutException:
+            texts = self._driver.execute_script(
+                "return arguments[0].map((id) => [id, (document.getElementById(id) || {}).innerText]);", self.SHOWN
+            )
+            raise TimeoutException("the page showed: " + "; ".join(f"{k}={v!r}" for k, v in texts)) from None
 
 
 def painted_cells(driver, canvas: str) -> int:
@@ -158,7 +176,7 @@ def shoot(driver, tmp_path: Path, name: str, panel: str | None = None) -> None:
 def test_review_in_the_browser(unnamed_page_system, browser):
     url, tmp_path, _ = unnamed_page_system
     browser.get(url)
-    wait = WebDriverWait(browser, 120, poll_frequency=0.3)
+    wait = PageWait(browser, 120, poll_frequency=0.3)
     title = lambda: browser.find_element("id", "plan-title").text  # noqa: E731
     wait.until(lambda _: title().startswith("plan 1 "))
     # Nobody has said who reviews: the page asks, and answers wait until they do.
@@ -471,7 +489,7 @@ def test_the_page_survives_node_restarts(page_system, browser):
     url, tmp_path, launcher = page_system
     browser.execute_cdp_cmd("Page.addScriptToEvaluateOnNewDocument", {"source": RECORDER % json.dumps(ANSWERS)})
     browser.get(url)
-    wait = WebDriverWait(browser, 120, poll_frequency=0.2)
+    wait = PageWait(browser, 120, poll_frequency=0.2)
     text = lambda element: browser.find_element("id", element).text  # noqa: E731
     boxes = lambda: {box: browser.find_element("id", box).get_attribute("value") for box in typed}  # noqa: E731
     script = browser.execute_script

@@ -140,3 +140,65 @@ def test_a_plan_that_repeats_a_rejected_one_says_what_can_change_it():
     page = plan_view(plan)["repeats_text"]  # the page's words, for its buttons rather than commands
     assert page.startswith("The same moves as plan 2, which you rejected") and "correct a step, teach it" in page
     assert plan_view(messages.schema("plan")["examples"][0])["repeats_text"] == ""
+
+
+def _real_episodes(n_games: int):
+    """Real Messenger episodes as a report carries them, with the game's spec: every other one played
+    by the paper's simulated person (who mostly wins), the rest by random moves (which mostly die)."""
+    import numpy as np
+
+    from lwm_models.agent.expert import expert_actions, role_ids
+    from lwm_models.data.splits import load_split
+    from lwm_models.messenger.engine import grid_to_compact
+    from lwm_models.messenger.env import MessengerEnv
+
+    games = load_split("newall-test")
+    rng = np.random.default_rng(0)
+    for g in range(n_games):
+        spec = games[g % len(games)]
+        env = MessengerEnv(spec)
+        obs, _ = env.reset(seed=g)
+        observations, actions, reward, done, has = [obs.tolist()], [], 0.0, False, False
+        while not done:
+            if g % 2:
+                a = int(expert_actions(grid_to_compact(obs)[None], role_ids(spec), len(actions) + 1, g)[0])
+            else:
+                a = int(rng.integers(5))
+            carried_before = has
+            obs, r, term, trunc, info = env.step(a)
+            has = env.has_message
+            observations.append(obs.tolist())
+            actions.append(a)
+            reward += r
+            done = term or trunc
+        outcome = "died" if not env.alive else "won" if env.won else "time_limit"
+        yield spec, carried_before, {
+            "review_id": f"newall-test:{g}:0", "plan_id": 2, "revisions": 1, "real_return": reward,
+            "imagined_return": 1.5, "steps": len(actions), "outcome": outcome,
+            "divergence": {"first_step": 1, "mean_cells": 1.0, "risk_steps": []}, "actions": actions,
+            "observations": observations, "planned_observations": observations[:3],
+        }  # fmt: skip
+
+
+def test_a_report_says_how_the_real_episode_ended_and_what_the_avatar_touched():
+    from lwm_models.agent.review_text import report_text
+
+    ends = {"died": 0, "won": 0}
+    for spec, carried, report in _real_episodes(120):
+        text = report_text(report)
+        if report["outcome"] in ends:
+            ends[report["outcome"]] += 1
+            roles = {e.identity: e.role for e in spec.entities}
+            line = text.splitlines()[1]
+            touched = line.split(", touching the ")[1].split(":")[0].split(" and the ")
+            if report["outcome"] == "died":  # the enemy, or the goal without the message
+                assert "enemy" in {roles[t] for t in touched} or (not carried and "goal" in {roles[t] for t in touched})
+                assert line.startswith(f"the agent died at step {report['steps']}, touching the ")
+            else:
+                assert "goal" in {roles[t] for t in touched}, (line, roles)
+        # The real episode beside the plan: start, the step they part, the end; every step with "all".
+        titles = [line for line in text.splitlines() if line.startswith("real ") and line.endswith("imagined (plan 2)")]
+        assert len(titles) == len({0, 1, report["steps"]})
+        assert report_text(report, "all").count("imagined (plan 2)") == report["steps"] + 1
+        assert text.endswith("m a new manual for this game")
+    assert ends["died"] >= 5 and ends["won"] >= 1, ends

@@ -12,7 +12,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from ..messenger.constants import ACTION_NAMES
+from ..messenger.constants import ACTION_DELTAS, ACTION_NAMES, AVATAR_CHANNEL, GRID, ID_TO_IDENTITY
+from ..messenger.engine import grid_to_compact
 from ..messenger.render import legend as board_legend
 from ..messenger.render import render_ascii
 from .understood import believed, describe, read_roles
@@ -113,16 +114,103 @@ def state_text(request: dict, k: int, before: Sequence | None = None) -> str:
         f"state {k} of {len(request['observations'])} (imagined episode {request['trajectories'][k]}, "
         f"step {request['steps'][k]}); board: {board_legend(obs, every_avatar=True)}"
     )
-    parts = [head]
-    if before is not None:
-        left = render_ascii(np.asarray(before, dtype=np.uint8)).splitlines()
-        right = render_ascii(obs).splitlines()
-        parts.append("a step before".ljust(len(left[0]) + 3) + "now")
-        parts += [f"{a}   {b}" for a, b in zip(left, right, strict=True)]
-    else:
-        parts.append(render_ascii(obs))
+    parts = [head, beside(("a step before", before), ("now", obs)) if before is not None else render_ascii(obs)]
     parts.append(f"{ACTIONS_KEY}; answer l {k}:ACTION (or several: l 0:3 1:4), s N to see state N")
     return "\n".join(parts)
 
 
-__all__ = ["outcome", "plan_text", "question_text", "state_text", "step_event"]
+def beside(*boards: tuple[str, Sequence]) -> str:
+    """Boards side by side, each under its title (a person compares them line by line)."""
+    drawn = [render_ascii(np.asarray(obs, dtype=np.uint8)).splitlines() for _, obs in boards]
+    width = len(drawn[0][0]) + 3
+    lines = ["".join(title.ljust(width) for title, _ in boards).rstrip()]
+    lines += ["   ".join(rows) for rows in zip(*drawn, strict=True)]
+    return "\n".join(lines)
+
+
+def _compact(obs: Sequence) -> np.ndarray:
+    a = np.asarray(obs, dtype=np.uint8)
+    return grid_to_compact(a) if a.shape[-2:] != (AVATAR_CHANNEL + 1, 3) else a
+
+
+def touched(before: Sequence, action: int, after: Sequence) -> list[str]:
+    """The identities the avatar ran into on its last move. A sprite the avatar touches leaves the
+    board if it is the message, or the goal on a win; one that stays (an enemy) is found at the
+    avatar's cell after `action` from `before` (at a death the avatar itself leaves the board). A
+    sprite overlaps the avatar within a cell on both axes, and entities move on half cells, so one
+    shown a cell above or left of the avatar touches it too."""
+    b, a = _compact(before), _compact(after)
+    dr, dc = ACTION_DELTAS[action]
+    row = min(max(int(b[AVATAR_CHANNEL, 1]) + dr, 0), GRID - 1)
+    col = min(max(int(b[AVATAR_CHANNEL, 2]) + dc, 0), GRID - 1)
+    stayed = {int(i) for i in a[:AVATAR_CHANNEL, 0] if i}
+    near = [(0, int(i)) for i in b[:AVATAR_CHANNEL, 0] if i and int(i) not in stayed]
+    near += [
+        (1 + abs(int(r) - row) + abs(int(c) - col), int(i))
+        for i, r, c in a[:AVATAR_CHANNEL]
+        if i and row - 1 <= r <= row and col - 1 <= c <= col
+    ]
+    return [ID_TO_IDENTITY.get(i, f"sprite {i}") for _, i in sorted(near)]
+
+
+def ending(report: dict) -> str:
+    """How the real episode ended, in words, with what the avatar touched when it died or won."""
+    steps, said = report["steps"], report["outcome"]
+    obs, actions = report.get("observations") or [], report.get("actions") or []
+    what = {"died": "the agent died", "won": "the agent won", "time_limit": "the agent ran out of time",
+            "stopped": "you stopped the agent", "aborted": "you aborted the review"}.get(said, said)  # fmt: skip
+    where = f" at step {steps}" if said in ("died", "won", "stopped") else f" after {steps} steps"
+    cause = ""
+    if said in ("died", "won") and len(obs) >= 2 and actions:
+        names = touched(obs[-2], actions[-1], obs[-1])
+        if names:
+            cause = f", touching the {' and the '.join(names)}"
+    return what + where + cause
+
+
+REPORT_NEXT = (
+    "what next: n the next episode | restart this episode | f every step, real beside imagined | "
+    "m a new manual for this game"
+)
+
+
+def report_text(report: dict, frames: str = "ends") -> str:
+    """An execution's report for a terminal: how it ended and why, the real episode beside the plan
+    that was approved (its start, the step where they part, its end; frames='all': every step),
+    and what the person can do next."""
+    real = report.get("observations") or []
+    planned = report.get("planned_observations") or []
+    div = report["divergence"]
+    asked = report.get("reviews_asked", 0)
+    lines = [
+        f"=== report of review {report['review_id']}: plan {report['plan_id']} after {report.get('revisions', 0)} "
+        f"revision(s) ===",
+        f"{ending(report)}: real return {report['real_return']:+.2f}, imagined {report['imagined_return']:+.2f}"
+        + (f"; the agent stopped to ask you again {asked} time(s)" if asked else ""),
+    ]
+    if frames == "none" or not real:
+        if not real:
+            lines.append("the agent made no move in the real game")
+        return "\n".join([*lines, REPORT_NEXT])
+    parted = div.get("first_step")
+    went = "went as imagined at every step" if parted is None else f"parted from the plan at step {parted}"
+    lines.append(f"the real game {went}")
+    lines.append(f"board: {board_legend(np.asarray(real[0], dtype=np.uint8), every_avatar=True)}")
+    actions = report.get("actions") or []
+    last = len(real) - 1
+    shown = range(last + 1) if frames == "all" else sorted({0, *([parted] if parted else []), last})
+    for t in shown:
+        did = f", real action {ACTION_NAMES[actions[t - 1]]}" if 0 < t <= len(actions) else ""
+        head = "start" if t == 0 else f"step {t}{did}" + (f" ({ending(report)})" if t == last else "")
+        if t == last and report["outcome"] == "died":
+            head += "; the avatar is off the board"
+        imagined = planned[min(t, len(planned) - 1)] if planned else real[t]
+        lines += [head, beside(("real", real[t]), (f"imagined (plan {report['plan_id']})", imagined))]
+    if actions:
+        lines.append("real steps: " + ", ".join(f"{t} {ACTION_NAMES[a]}" for t, a in enumerate(actions, 1)))
+    lines.append(REPORT_NEXT)
+    return "\n".join(lines)
+
+
+__all__ = ["beside", "ending", "outcome", "plan_text", "question_text", "report_text", "state_text", "step_event",
+           "touched"]  # fmt: skip

@@ -18,7 +18,8 @@ futures are printed, and the person answers on stdin:
                       fact joins the manual, and the agent re-plans under it
     n [SEED]          the next episode of this game (the next seed, or SEED): a fresh review
     restart           this episode again from its start (same board and seed), as a fresh review
-    f                 every frame of the plan (a plan shows its start and last board, a line per step)
+    f                 every frame of the plan (a plan shows its start and last board, a line per step);
+                      once its report is out, every step of the real episode beside the plan
     s N               state N of the label request, beside the state a step before it
 
 A command may be typed in full (approve, reject, abort, teach, manual, next, ...). A line that is
@@ -34,7 +35,7 @@ import threading
 import time
 from typing import TYPE_CHECKING
 
-from lwm_models.agent.review_text import progress_text, state_text
+from lwm_models.agent.review_text import progress_text, report_text, state_text
 from lwm_models.agent.review_view import answered_manual, label_request_view
 from lwm_models.messenger.constants import ACTION_NAMES
 from lwm_nodes.reviewer import Reviewer, show
@@ -117,11 +118,14 @@ def parse_command(line: str) -> tuple[str, list]:
 class TerminalReviewer(Reviewer):
     def __init__(self, node: HumanNode) -> None:
         self.node = node
+        self.report: dict | None = None  # the open review's report, once it is out (`f` shows it)
 
     def start(self) -> None:
         threading.Thread(target=self.read_commands, daemon=True).start()
 
     def on_plan(self, plan: dict) -> None:
+        if self.report is not None and self.report["review_id"] != plan["review_id"]:
+            self.report = None
         show(plan, self.node.quiet)
         print(PROMPT, flush=True)
 
@@ -141,6 +145,10 @@ class TerminalReviewer(Reviewer):
         )
         for k in range(n):
             self.show_state(k)
+
+    def on_report(self, report: dict) -> None:
+        self.report = report
+        print("\n" + report_text(report, "none" if self.node.quiet else "ends"), flush=True)
 
     def on_notice(self, text: str) -> None:
         super().on_notice(text)
@@ -187,9 +195,12 @@ class TerminalReviewer(Reviewer):
         elif head == "s":
             self.show_state(args[0])
         elif head == "f":
-            if node.plan is None:
+            if self.report is not None:
+                print(report_text(self.report, "all"), flush=True)
+            elif node.plan is None:
                 raise ValueError("there is no plan yet to show")
-            show(node.plan, frames="all")
+            else:
+                show(node.plan, frames="all")
         elif head == "n":
             print(node.next_episode(args[0] if args else None), flush=True)
         elif head == "restart":
