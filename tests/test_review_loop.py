@@ -388,3 +388,51 @@ def test_a_reject_that_changes_nothing_says_so(encoder):
         messages.validate("plan", {"version": messages.version("plan"), **new})
     assert any("repeats" in p for p in plans[1:]), "every reject changed the plan: nothing here was tested"
     h.loop.close()
+
+
+def _weights(agent) -> dict:
+    return {k: v.clone() for k, v in agent.policy.state_dict().items()}
+
+
+def _same(a: dict, b: dict) -> bool:
+    return all(torch.equal(a[k], b[k]) for k in a)
+
+
+def test_undo_takes_back_the_newest_learning_and_returns_the_policy_to_what_it_was(encoder):
+    """Two corrections, then undo twice: each undo returns the policy, its pinned corrections and
+    the learning counts to what they were before the correction it takes back (the very weights),
+    re-plans, and a third undo is refused in plain words. A manual change is the world-model
+    server's to take back: the planner's undo refuses it and says how."""
+    sim = WorldModelServer(encoder=encoder)
+    h = LoopHarness(sim, Budget(iterations=1, episodes=2, grad_steps=2))
+    h.start()
+    plan = h.wait(h.plans, 1)
+    agent = h.loop.review.agent
+    before = [_weights(agent)]
+    for k, step in ((2, 1), (3, 2)):
+        fix = [{"step": step, "action": 4}]
+        h.loop.on_feedback({**ids(plan), "decision": "corrections", "corrections": fix})
+        plan = h.wait(h.plans, k)
+        assert plan["reason"] == "corrections" and plan["actions"][step - 1] == 4
+        before.append(_weights(agent))
+    assert not _same(before[1], before[2]) and len(agent.pinned) == 2
+    for k, back in ((4, before[1]), (5, before[0])):
+        said = h.loop.on_feedback({**ids(plan), "decision": "undo"})
+        assert said.startswith("your corrections (on plan ") and "taken back" in said, said
+        plan = h.wait(h.plans, k)
+        assert plan["reason"] == "undo" and _same(_weights(agent), back)
+        messages.validate("plan", {"version": messages.version("plan"), **plan})
+    assert not agent.pinned and plan["learning"]["corrections"] == 0
+    with pytest.raises(FeedbackError, match="nothing to take back"):
+        h.loop.on_feedback({**ids(plan), "decision": "undo"})
+
+    sim.set_manual(MANUAL, "human")
+    h.loop.on_status(sim.status())
+    plan = h.wait(h.plans, 6)
+    with pytest.raises(FeedbackError, match=r"your newest change is manual v2.*sending the manual before it again"):
+        h.loop.on_feedback({**ids(plan), "decision": "undo"})
+    h.loop.close()
+
+
+def ids(plan: dict) -> dict:
+    return {"review_id": plan["review_id"], "plan_id": plan["plan_id"]}

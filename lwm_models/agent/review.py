@@ -42,6 +42,7 @@ from .imaginer import Unavailable
 from .learning import Budget, LabelledSet
 from .policy import EmmaPolicy, load_policy, save_policy
 from .self_teaching import Teaching
+from .undo import UNDO_SOURCE, last_change, policy_before
 
 LABELS = "labels.safetensors"  # beside a review's policy snapshot: the states labelled so far
 MAX_EARLY = 100  # feedback and labels kept while no review is open (a restarted planner)
@@ -71,6 +72,23 @@ TAKEN = {
 }
 STOP_TAKEN = "teaching stops now: the agent keeps what it has learnt and re-plans"
 STOP_EXECUTION_TAKEN = "the agent stops playing before its next move: a report of what it did follows"
+
+
+WORSE_AFTER = ("corrections", "imitation", "demonstrations", "manual")  # the changes a person can take back
+WORSE_DEATHS = 0.25  # this much more of the sampled futures die (2 of the default 8) ...
+WORSE_RETURN = 0.5  # ... or their mean return falls this much: the plan looks worse
+
+
+def worse_than(before: Plan, plan: Plan) -> dict | None:
+    """Whether `plan` looks worse than `before` by its sampled futures; what `before` scored, if so.
+    The futures, not the one trajectory shown, since a single sample's end is noise."""
+    was, now = before.futures, plan.futures
+    if (
+        now["death_share"] - was["death_share"] >= WORSE_DEATHS
+        or was["return_mean"] - now["return_mean"] >= WORSE_RETURN
+    ):
+        return {"plan": before.plan_id, "death_share": was["death_share"], "return_mean": was["return_mean"]}
+    return None
 
 
 @dataclass
@@ -235,7 +253,16 @@ class ReviewLoop:
                 raise FeedbackError(
                     f"plan {msg['plan_id']} is not under review (plan {r.plan and r.plan.plan_id}, {r.phase})"
                 )
-            if decision == "corrections":
+            taken = TAKEN.get(decision, "").format(plan=msg["plan_id"])
+            if decision == "undo":
+                change = last_change(self.ledger.history(r.review_id))
+                if change.kind == "manual":
+                    raise FeedbackError(
+                        f"your newest change is {change.words()}, which the world-model server holds: it is taken "
+                        "back by sending the manual before it again (u at the terminal, undo on the page)"
+                    )
+                taken = f"{change.words()} taken back: the agent returns to what it knew before and re-plans"
+            elif decision == "corrections":
                 r.agent.check_corrections(r.plan, [Correction(c["step"], c["action"]) for c in msg["corrections"]])
             elif decision == "demonstrations":
                 for i, d in enumerate(msg["demonstrations"]):
@@ -245,7 +272,7 @@ class ReviewLoop:
             r.answered.add((msg["plan_id"], decision))
             r.phase = "executing" if decision == "approve" else "done" if decision == "abort" else "planning"
             self._submit(lambda: self._take(r, msg, record))
-            return TAKEN[decision].format(plan=msg["plan_id"])
+            return taken
 
     def _stop(self, r: Review, msg: dict) -> str:
         """End the long job under way (called with the lock held). Teaching: the round waiting for
@@ -343,7 +370,9 @@ class ReviewLoop:
         if history:
             self._resume(r, history)
         else:
-            self._record_manual(r)
+            # What the agent knows as the review opens (what earlier episodes of this game taught it)
+            # is saved too: taking back the person's first answer returns to it.
+            self._save_policy(r, self._record_manual(r))
             self._submit(lambda: self._plan(r, "start"))
         early, self.early = self.early, []
         for handler, msg in early:
@@ -352,8 +381,8 @@ class ReviewLoop:
             except LwmError as exc:
                 self.ports.log(f"kept {msg.get('decision', 'labels')} for {msg['review_id']} not taken: {exc}")
 
-    def _record_manual(self, r: Review) -> None:
-        self.ledger.record(
+    def _record_manual(self, r: Review) -> int:
+        return self.ledger.record(
             r.review_id,
             "manual",
             {
@@ -405,6 +434,12 @@ class ReviewLoop:
             a.clone(msg["demonstrations"], self.config.clone_updates)
             r.learned["demonstrations"] += len(msg["demonstrations"])
             self._save_policy(r, record)
+        elif decision == "undo":
+            history = [rec for rec in self.ledger.history(r.review_id) if rec["id"] < record]
+            change = last_change(history)
+            self._load_policy(r, policy_before(history, change))
+            self._save_policy(r, record)
+            self.ports.log(f"review {r.review_id}: {change.words()} taken back")
         self._plan(r, {"reject": "reject", "imitate": "imitation"}.get(decision, decision))
 
     # ------------------------------------------------------------------ plans
@@ -418,7 +453,8 @@ class ReviewLoop:
 
     def _plan(self, r: Review, reason: str) -> None:
         start, start_step, before = self._start_of(r)
-        rejected = r.plan if reason == "reject" else None
+        previous = r.plan
+        rejected = previous if reason == "reject" else None
         if reason in ("start", "manual") and self.config.teaching.rounds and r.agent.unread:
             if reason == "manual" and r.agent.confirmed(self._starts(r)):
                 self.ports.log(f"review {r.review_id}: the answer confirms the roles and movements it acts on")
@@ -442,6 +478,11 @@ class ReviewLoop:
                 # A reject changes nothing the agent has learnt, so the person must hear that the
                 # "new" plan is the old one, and what can change it.
                 message["repeats"] = rejected.plan_id
+            undone = reason == "manual" and self.manual_source == UNDO_SOURCE
+            if reason in WORSE_AFTER and previous is not None and not undone:
+                worse = worse_than(previous, plan)
+                if worse is not None:
+                    message["worse"] = {**worse, "after": reason}
             self.ledger.record(r.review_id, "plan", message)
         self.ports.publish_plan(message)
         self.ports.log(
@@ -707,12 +748,14 @@ class ReviewLoop:
             self._maybe_start()
 
     # ------------------------------------------------------------------ the policy on disk
-    def _policy_path(self, r: Review) -> Path:
-        return self.policy_dir / re.sub(r"[^A-Za-z0-9_.-]", "_", r.review_id)
+    def _policy_path(self, r: Review, after: int) -> Path:
+        return self.policy_dir / re.sub(r"[^A-Za-z0-9_.-]", "_", r.review_id) / str(after)
 
     def _save_policy(self, r: Review, after: int) -> None:
-        """The policy and its labelled states, in one checkpoint, so a restart resumes from them."""
-        path = self._policy_path(r)
+        """The policy and its labelled states, in one checkpoint, so a restart resumes from them.
+        Each is kept (one directory per ledger record it follows): taking back a person's answer
+        returns to the one saved before it."""
+        path = self._policy_path(r, after)
         labelled = r.agent.labelled
 
         pinned = list(r.agent.pinned.values())
@@ -729,8 +772,27 @@ class ReviewLoop:
 
         save_policy(r.agent.policy, path, {"review_id": r.review_id, "after": after}, also=labels)
         self.ledger.record(
-            r.review_id, "policy", {"path": str(path), "after": after, "labelled": len(r.agent.labelled)}
+            r.review_id,
+            "policy",
+            {"path": str(path), "after": after, "labelled": len(r.agent.labelled), "learned": dict(r.learned)},
         )
+
+    def _load_policy(self, r: Review, saved: dict | None) -> None:
+        """Return the agent to a saved policy with its labelled states and pinned corrections."""
+        if saved is None or not Path(saved["path"]).is_dir():
+            raise LwmError(f"the policy to return to is gone ({saved and saved['path']})")
+        r.agent.policy.load_state_dict(load_policy(saved["path"]).state_dict())
+        data = Path(saved["path"]) / LABELS
+        r.agent.labelled = LabelledSet()
+        r.agent.pinned.clear()
+        if data.is_file():
+            arrays = load_arrays(str(data))
+            if "history" in arrays:
+                r.agent.labelled.add(arrays["history"], arrays["labels"])
+            for h, a in zip(arrays.get("pinned_history", []), arrays.get("pinned_actions", []), strict=True):
+                r.agent.pinned[h.tobytes()] = (h, int(a))
+        if "learned" in saved:
+            r.learned = dict(saved["learned"])
 
     # ------------------------------------------------------------------ resume
     def _resume(self, r: Review, history: list[dict]) -> None:
@@ -763,15 +825,7 @@ class ReviewLoop:
             elif kind == "report":
                 done = True
         if saved is not None and Path(saved["path"]).is_dir():
-            r.agent.policy.load_state_dict(load_policy(saved["path"]).state_dict())
-            data = Path(saved["path"]) / LABELS
-            r.agent.labelled = LabelledSet()
-            if data.is_file():
-                arrays = load_arrays(str(data))
-                if "history" in arrays:
-                    r.agent.labelled.add(arrays["history"], arrays["labels"])
-                for h, a in zip(arrays.get("pinned_history", []), arrays.get("pinned_actions", []), strict=True):
-                    r.agent.pinned[h.tobytes()] = (h, int(a))
+            self._load_policy(r, saved)
         if done:
             # A finished review is never redone: its report is shown again, so that a person who
             # continues a run sees how this episode ended (the next episode is theirs to start).

@@ -61,6 +61,25 @@ REPEATS = (
 )
 
 
+WORSE_WHAT = {"corrections": "your correction", "imitation": "your teaching", "demonstrations": "your demonstrations",
+              "manual": "your manual"}  # fmt: skip
+WORSE_TAKE_BACK = {"terminal": "u takes it back", "page": "undo takes it back"}
+
+
+def worse_text(plan: dict, where: str = "terminal") -> str:
+    """A plan that looks worse than the one before the person's change, in words, with how to take
+    the change back; '' for any other plan."""
+    w = plan.get("worse")
+    if not w:
+        return ""
+    f = plan["futures"]
+    return (
+        f"this plan looks worse than plan {w['plan']}, before {WORSE_WHAT[w['after']]}: its futures die "
+        f"{f['death_share']:.0%} (were {w['death_share']:.0%}), mean return {f['return_mean']:+.2f} (was "
+        f"{w['return_mean']:+.2f}); {WORSE_TAKE_BACK[where]}"
+    )
+
+
 def plan_text(plan: dict, frames: str = "ends") -> str:
     """A plan for a terminal. frames: 'ends' (the start and the last board), 'all' or 'none'."""
     f = plan["futures"]
@@ -74,6 +93,8 @@ def plan_text(plan: dict, frames: str = "ends") -> str:
     ]
     if plan.get("repeats"):
         lines.append(REPEATS.format(plan=plan["repeats"]))
+    if plan.get("worse"):
+        lines.append(worse_text(plan))
     if plan.get("questions"):
         lines.append(question_text(plan))
     if frames == "none":
@@ -213,4 +234,4 @@ def report_text(report: dict, frames: str = "ends") -> str:
 
 
 __all__ = ["beside", "ending", "outcome", "plan_text", "question_text", "report_text", "state_text", "step_event",
-           "touched"]  # fmt: skip
+           "touched", "worse_text"]  # fmt: skip

@@ -16,7 +16,7 @@ import numpy as np
 from ..ledger import headline
 from ..messenger.render import board, identity_style, symbol_key
 from ..text.parser import parse_description
-from .review_text import progress_text
+from .review_text import progress_text, worse_text
 from .understood import believed, describe
 
 
@@ -72,7 +72,8 @@ def plan_view(plan: dict) -> dict:
     believes = believed(plan["roles"]) if plan.get("roles") else None
     repeats = REPEATS_ON_PAGE.format(plan=plan["repeats"]) if plan.get("repeats") else ""
     return {**plan, "frames": frames(plan["observations"]), "legend": legend(plan["manual"], plan.get("roles")),
-            "imagined": imagined, "believes": believes, "board_key": symbol_key(), "repeats_text": repeats}  # fmt: skip
+            "imagined": imagined, "believes": believes, "board_key": symbol_key(), "repeats_text": repeats,
+            "worse_text": worse_text(plan, "page")}  # fmt: skip
 
 
 def progress_view(progress: dict) -> dict:

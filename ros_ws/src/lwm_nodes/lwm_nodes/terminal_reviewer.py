@@ -12,6 +12,8 @@ futures are printed, and the person answers on stdin:
     l STATE:ACTION ...  label states of the current label request ("l -" sends none); one answer
                       per request, before the planner stops waiting (the request's timeout)
     x                 abort: execute nothing
+    u                 undo: take back your newest change still in force in this review (a correction,
+                      a teaching with its labels, demonstrations, or a manual or answer), newest first
     m                 the manual under review, then a new one: three descriptions, one per line
                       (published on /feedback/manual)
     q N               answer the plan's question about the manual with choice N (1, 2 or 3): the
@@ -44,19 +46,19 @@ if TYPE_CHECKING:
     from lwm_nodes.human_node import HumanNode
 
 PROMPT = (
-    "answer: a approve | r reject | c STEP:ACTION ... correct | i [ROUNDS] teach | x abort | m manual | "
+    "answer: a approve | r reject | c STEP:ACTION ... correct | i [ROUNDS] teach | x abort | u undo | m manual | "
     "n next episode | restart this episode | f every frame | stop (teaching or the agent's play)"
     " | q N answer the question"
 )
 USAGE = (
-    "unknown command; a | r | c STEP:ACTION ... | i [ROUNDS] | l STATE:ACTION ... | x | stop | m | q N | n [SEED] | "
-    "restart"
+    "unknown command; a | r | c STEP:ACTION ... | i [ROUNDS] | l STATE:ACTION ... | x | u | stop | m | q N | "
+    "n [SEED] | restart"
 )
 NODE_WORDS = {"lwm_world_model": "world-model server"}  # how the terminal names who answered
 DECISIONS = {"a": "approve", "r": "reject", "x": "abort", "stop": "stop"}
 # A command typed in full means what its letter does.
 WORDS = {"approve": "a", "reject": "r", "abort": "x", "correct": "c", "teach": "i", "imitate": "i", "label": "l",
-         "manual": "m", "next": "n", "frames": "f", "show": "s", "answer": "q"}  # fmt: skip
+         "manual": "m", "next": "n", "frames": "f", "show": "s", "answer": "q", "undo": "u"}  # fmt: skip
 ACTION_WORDS = {name: k for k, name in enumerate(ACTION_NAMES)}
 
 
@@ -89,7 +91,7 @@ def parse_command(line: str) -> tuple[str, list]:
         return "", []
     head = WORDS.get(words[0].lower(), words[0].lower())
     rest = words[1:]
-    if head in ("a", "r", "x", "stop", "m", "f", "restart"):
+    if head in ("a", "r", "x", "stop", "m", "f", "restart", "u"):
         if rest:
             raise ValueError(f"{words[0]} takes nothing after it; got {' '.join(rest)!r}")
         return head, []
@@ -207,6 +209,9 @@ class TerminalReviewer(Reviewer):
             print(node.next_episode(restart=True), flush=True)
         elif head == "l":
             node.send_labels([s for s, _ in args], [a for _, a in args])
+        elif head == "u":
+            _, who = node.undo()
+            print(f"taking back your newest change; {who} answers", flush=True)
         elif not head:
             return
         elif node.plan is None:
