@@ -242,12 +242,17 @@ def test_review_in_the_browser(unnamed_page_system, browser):
     wait.until(lambda _: f"corrections of plan {shown['plan_id']} taken" in browser.find_element("id", "message").text)
     wait.until(lambda _: title().startswith(f"plan {shown['plan_id'] + 1} "))
     assert json.load(urllib.request.urlopen(url + "api/state", timeout=10))["plan"]["actions"][0] == wanted
+    # Undo takes the correction back: the planner says so beside the controls and re-plans.
+    browser.find_element("id", "undo").click()
+    wait.until(lambda _: f"your corrections (on plan {shown['plan_id']}) taken back" in text("message"))
+    wait.until(lambda _: title().startswith(f"plan {shown['plan_id'] + 2} "))
+    assert json.load(urllib.request.urlopen(url + "api/state", timeout=10))["plan"]["reason"] == "undo"
+    shoot(browser, tmp_path, "review_page_undo.png", "message")
 
     # Teaching (2 rounds in this system): the agent asks about a few states it is unsure of, each
     # drawn with the board a step before it.
     imitated = title().split()[1]
     browser.find_element("id", "imitate").click()
-    text = lambda element: browser.find_element("id", element).text  # noqa: E731
     wait.until(lambda _: text("labels-title").startswith("label request 1 (round 1/2"))
     assert text("labels-title").endswith("that the agent is unsure of")
     shown = int(text("labels-title").split(": ")[1].split()[0])

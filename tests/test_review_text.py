@@ -202,3 +202,31 @@ def test_a_report_says_how_the_real_episode_ended_and_what_the_avatar_touched():
         assert report_text(report, "all").count("imagined (plan 2)") == report["steps"] + 1
         assert text.endswith("m a new manual for this game")
     assert ends["died"] >= 5 and ends["won"] >= 1, ends
+
+
+def test_a_plan_that_looks_worse_after_a_change_says_so_and_how_to_take_it_back():
+    from lwm_models.agent.review_text import worse_text
+    from lwm_models.agent.review_view import plan_view
+
+    plan = copy.deepcopy(messages.schema("plan")["examples"][0])
+    assert worse_text(plan) == "" and plan_view(plan)["worse_text"] == ""
+    plan["worse"] = {"plan": 3, "after": "corrections", "death_share": 0.25, "return_mean": 0.8}
+    messages.validate("plan", {"version": messages.version("plan"), **plan})
+    said = worse_text(plan)
+    assert said.startswith("this plan looks worse than plan 3, before your correction: its futures die 100% (were 25%)")
+    assert said.endswith("u takes it back") and said in plan_text(plan)
+    assert plan_view(plan)["worse_text"].endswith("undo takes it back")
+
+
+def test_worse_is_judged_on_the_sampled_futures():
+    from lwm_models.agent.agent import Plan
+    from lwm_models.agent.review import worse_than
+
+    def plan(plan_id: int, death: float, mean: float) -> Plan:
+        p = Plan(**{k: v for k, v in messages.schema("plan")["examples"][0].items() if k in Plan.__dataclass_fields__})
+        p.plan_id, p.futures = plan_id, {**p.futures, "death_share": death, "return_mean": mean}
+        return p
+
+    assert worse_than(plan(1, 0.25, 0.5), plan(2, 0.5, 0.5)) == {"plan": 1, "death_share": 0.25, "return_mean": 0.5}
+    assert worse_than(plan(1, 0.25, 0.5), plan(2, 0.25, -0.1)) is not None  # the mean fell by 0.6
+    assert worse_than(plan(1, 0.25, 0.5), plan(2, 0.375, 0.2)) is None  # one more future dies of 8: noise

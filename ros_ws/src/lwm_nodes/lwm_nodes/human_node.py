@@ -166,19 +166,19 @@ class HumanNode(JsonNode):
         again = " again (a new review of the same board)" if restart else ""
         return f"episode {episode} started{again}; its plan follows"
 
-    def undo(self) -> tuple[str, str]:
+    def undo(self) -> tuple[str, str, str]:
         """Take back the person's newest change still in force in the review under way (lwm_models/
         agent/undo.py): a manual by sending the one before it again, learning by feedback `undo`
-        (the planner returns to the policy it had before). Returns (msg_id, who answers); raises
-        with the reason when there is nothing to take back."""
+        (the planner returns to the policy it had before). Returns (msg_id, who answers, what is
+        taken back); raises with the reason when there is nothing to take back."""
         plan = self.plan
         if plan is None:
             raise ValueError("there is no plan under review yet: nothing to take back")
         change = last_change(self.history(plan["review_id"])["records"])
         if change.kind == "manual":
-            return self.publish_manual(manual_before(change)), "the world-model server"
+            return self.publish_manual(manual_before(change)), "the world-model server", change.words()
         feedback = {"review_id": plan["review_id"], "plan_id": plan["plan_id"], "decision": "undo"}
-        return self.publish_feedback(feedback), "the planner"
+        return self.publish_feedback(feedback), "the planner", change.words()
 
     def send_labels(self, states: list[int], actions: list[int], request_id: int | None = None) -> str:
         """Labels from the reviewer for the open label request; request_id, when given, is the

@@ -118,7 +118,9 @@ class PageReviewer(Reviewer):
         """An answer to the plan; the schema (checked before publishing) refuses a wrong one, the
         planner the rest. Returns the planner's words; raises with them when it refuses."""
         if body.get("decision") == "undo":  # a manual or learning, whichever is newest
-            return self._answer(*self.node.undo())
+            msg_id, who, what = self.node.undo()
+            self.node.get_logger().info(f"page: taking back {what}")
+            return self._answer(msg_id, who)
         allowed = ("review_id", "plan_id", "decision", "corrections", "rounds")
         msg_id = self.node.publish_feedback({k: v for k, v in body.items() if k in allowed})
         self.node.get_logger().info(f"page: {body.get('decision')} on plan {body.get('plan_id')}")

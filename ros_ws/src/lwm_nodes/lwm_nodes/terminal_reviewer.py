@@ -210,8 +210,8 @@ class TerminalReviewer(Reviewer):
         elif head == "l":
             node.send_labels([s for s, _ in args], [a for _, a in args])
         elif head == "u":
-            _, who = node.undo()
-            print(f"taking back your newest change; {who} answers", flush=True)
+            _, who, what = node.undo()
+            print(f"taking back {what}; {who} answers", flush=True)
         elif not head:
             return
         elif node.plan is None:
