@@ -13,9 +13,10 @@ import pytest
 
 pytest.importorskip("rclpy")
 pytest.importorskip("lwm_interfaces")
-from lwm_models.data.splits import load_split  # noqa: E402
 from lwm_nodes import domains  # noqa: E402
 from test_resume_terminal import PROMPT, Terminal  # noqa: E402
+
+from lwm_models.data.splits import load_split  # noqa: E402
 
 pytestmark = pytest.mark.system
 
