@@ -180,6 +180,19 @@ PLAIN = [
 ]
 
 
+# What a schema says of a field, in words, for fields PLAIN does not name.
+COMPLAINTS = [
+    (r"^must be (integer|array|string|object|boolean|number)$", "must be {type1}"),
+    (r"^must be bigger than or equal to (\S+)$", r"must be at least \1"),
+    (r"^must be smaller than or equal to (\S+)$", r"must be at most \1"),
+    (r"^must match pattern .*$", "is empty or has characters it cannot have"),
+    (r"^must be one of \[(.*)\]$", r"must be one of \1"),
+    (r"^must contain \[(.*)\] properties$", r"needs \1"),
+    (r"^must contain at least (\d+) items$", r"needs at least \1"),
+    (r"^must contain less than or equal to (\d+) items$", r"takes at most \1"),
+]
+
+
 def plain_reason(exc: BaseException) -> str:
     """Why a payload was refused, in words a person at the page or the terminal understands: a
     schema's complaint is reworded (PLAIN), any other refusal keeps its own message, which the
@@ -205,4 +218,12 @@ def plain_reason(exc: BaseException) -> str:
                 fill[f"type{i}"] = TYPE_NAMES.get(g, g) if g is not None else ""
             said = m.expand(reworded).format(**fill)
             return f"{what}: {said}"
+    path, colon, complaint = rest.partition(": ")
+    if colon and re.fullmatch(r"[\w/]+", path):  # any other field: its place in words, items counted from 1
+        where = ", ".join(f"item {int(p) + 1}" if p.isdigit() else FIELD_NAMES.get(p, p.replace("_", " "))
+                          for p in path.split("/"))  # fmt: skip
+        for pattern, reworded in COMPLAINTS:
+            complaint = re.sub(pattern, lambda m, r=reworded: m.expand(r).format(type1=TYPE_NAMES.get(m[1], m[1])),
+                               complaint)  # fmt: skip
+        return f"{what}: {where}: {complaint}"
     return f"{what}: {rest}"

@@ -166,6 +166,19 @@ LABELS = {"version": messages.version("labels"), "review_id": "newall-test:0:0",
         ("labels", {**LABELS, "states": [0], "actions": [9]}, "label 1: an action is 0 up, 1 down"),
         ("labels", {**LABELS, "states": "0", "actions": [1]}, "the labelled states must be a list"),
         ("labels", {**LABELS, "states": [0]}, "'actions' is missing"),
+        # Fields no rewording names: their place in words, items counted from 1.
+        ("labels", {**LABELS, "states": [-1], "actions": [3]}, "the labelled states, item 1: must be at least 0"),
+        ("labels", {**LABELS, "states": [0, 1], "actions": [3, "x"]}, "the actions, item 2: must be a whole number"),
+        (
+            "review_feedback",
+            {**FEEDBACK, "decision": "corrections", "corrections": [{"step": 1, "action": "up"}]},
+            "the corrections, item 1, action: must be a whole number",
+        ),
+        (
+            "review_feedback",
+            {**FEEDBACK, "decision": "corrections", "corrections": [{"step": 1}, {"step": 2}]},
+            "the corrections, item 1: needs 'action'",
+        ),
     ],
 )
 def test_every_refusal_a_person_can_cause_is_said_in_plain_words(kind, payload, said):
