@@ -626,3 +626,72 @@ def test_a_correction_survives_a_killed_planner(system):
     feedback = [r["payload"] for r in Ledger(system["tmp"] / "ledger.sqlite").history(plan["review_id"])
                 if r["kind"] == "feedback"]  # fmt: skip
     assert [f["decision"] for f in feedback] == ["corrections", "reject"]
+
+
+def test_a_manual_a_correction_and_labels_survive_kill_9_of_every_node(system):
+    """A person's manual, a correction and a round of labels, then kill -9 of the world-model
+    server, the environment and the planner in turn: each comes back, the served manual is the
+    person's (its version unchanged, the ledger's last), the planner's plans still take the
+    correction, each answer is in the ledger once, and undo over ROS still takes the labels back."""
+    env = system["env"]
+    assert call(system, "/env/reset", {"seed": 44})["ok"]
+    plan = wait_for(lambda: (p := latched(system, "/planner/plan"))["review_id"].endswith(":44") and p, timeout=90)
+    assert plan, "no plan for the reset episode"
+    base = {"version": 2, "review_id": plan["review_id"]}
+
+    def send(topic: str, kind: str, payload: dict) -> None:
+        sent = wait_for(lambda: (s := lwm_ros(system, "pub", topic, json.dumps(payload), "--kind", kind,
+                                              *signed(system))).returncode == 0 and s, timeout=60)  # fmt: skip
+        assert sent, f"{topic} never took {payload}"
+
+    def next_plan(after: dict) -> dict:
+        p = wait_for(lambda: (q := latched(system, "/planner/plan"))["plan_id"] > after["plan_id"] and q, timeout=90)
+        assert p, f"no plan after plan {after['plan_id']}"
+        return p
+
+    mine = list(reversed(MANUAL2))  # a manual of the person's own, new to this server
+    send("/feedback/manual", "manual", {"version": 2, "descriptions": mine})
+    plan = wait_for(lambda: (p := latched(system, "/planner/plan"))["manual"] == mine and p, timeout=90)
+    assert plan, "no plan under the person's manual"
+    version = status(system)["manual_version"]
+    wanted = (plan["actions"][0] + 2) % 5
+    fix = [{"step": 1, "action": wanted}]
+    send("/review/feedback", "review_feedback", {**base, "plan_id": plan["plan_id"], "decision": "corrections",
+                                                 "corrections": fix})  # fmt: skip
+    plan = next_plan(plan)
+    assert plan["actions"][0] == wanted
+    send(
+        "/review/feedback", "review_feedback", {**base, "plan_id": plan["plan_id"], "decision": "imitate", "rounds": 1}
+    )
+    request = wait_for(lambda: (r := latched(system, "/planner/label_request"))["review_id"] == base["review_id"] and r)
+    assert request, "no label request"
+    n = len(request["observations"])
+    send("/review/labels", "labels",
+         {**base, "request_id": request["request_id"], "states": list(range(n)), "actions": [4] * n})  # fmt: skip
+    plan = next_plan(plan)
+    assert plan["reason"] == "imitation" and plan["learning"]["imitation_rounds"] == 1
+
+    for module, log in (("world_model_node", "world_model"), ("env_node", "env"), ("planner_node", "planner")):
+        text = system["tmp"] / "logs" / f"{log}.log"
+        ready = text.read_text().count("READY")
+        os.kill(node_pid(f"lwm_nodes.{module}", env["ROS_DOMAIN_ID"]), signal.SIGKILL)
+        assert wait_for(lambda: text.read_text().count("READY") > ready, timeout=90), text.read_text()[-2000:]  # noqa: B023
+    served = wait_for(lambda: (s := status(system))["manual"] == mine and s, timeout=30)
+    assert served and served["manual_version"] == version, "the restarted server serves another manual"
+    assert wait_for(lambda: f"review {base['review_id']} resumed from the ledger" in
+                    (system["tmp"] / "logs" / "planner.log").read_text(), timeout=60)  # fmt: skip
+
+    send("/review/feedback", "review_feedback", {**base, "plan_id": plan["plan_id"], "decision": "reject"})
+    plan = next_plan(plan)
+    assert plan["actions"][0] == wanted and plan["manual"] == mine and plan["learning"]["imitation_rounds"] == 1
+    send("/review/feedback", "review_feedback", {**base, "plan_id": plan["plan_id"], "decision": "undo"})
+    plan = next_plan(plan)
+    assert plan["reason"] == "undo" and plan["learning"]["imitation_rounds"] == 0
+    assert plan["learning"]["corrections"] == 1 and plan["actions"][0] == wanted  # the correction stays
+
+    history = Ledger(system["tmp"] / "ledger.sqlite").history(base["review_id"])
+    feedback = [r["payload"]["decision"] for r in history if r["kind"] == "feedback"]
+    assert feedback == ["corrections", "imitate", "reject", "undo"]
+    assert [r["kind"] for r in history].count("labels") == 1
+    manuals = [r["payload"] for r in history if r["kind"] == "manual"]
+    assert manuals[-1]["descriptions"] == mine and manuals[-1]["manual_version"] == version
