@@ -115,3 +115,8 @@ def test_resume_lands_on_the_review_that_was_open(tmp_path):
         (tmp_path / "resumed.txt").write_text(resumed.text())
     assert status == 0, resumed.text()[-3000:]
     assert "review newall-test:0:1 resumed from the ledger at plan 2" in (run / "planner.log").read_text()
+    # A game chosen beside --resume would silently lose to the saved episode: refused, saying why.
+    both = subprocess.run([*cmd, "--resume", str(run), "--seed", "5"], env=env, cwd=tmp_path, capture_output=True,
+                          text=True, timeout=60)  # fmt: skip
+    assert both.returncode == 2 and "Traceback" not in both.stderr, both.stderr
+    assert "--resume returns to the episode under review (newall-test:0:1); --seed would start another" in both.stderr

@@ -560,6 +560,15 @@ def main(argv: list[str] | None = None) -> int:
         args.log_dir, keys_default = choose_run_dir(args.log_dir, args.resume)
     except ValueError as exc:
         parser.error(str(exc))
+    chosen = [f"--{name}" for name in ("split", "index", "seed") if getattr(args, name) is not None]
+    saved = episode_file(args.log_dir)
+    if args.resume is not None and chosen and saved.is_file():
+        # The saved episode is the review the person left; a game chosen as well would silently lose.
+        under_review = json.loads(saved.read_text()).get("episode_id", "?")
+        parser.error(
+            f"--resume returns to the episode under review ({under_review}); {' and '.join(chosen)} would start "
+            "another: leave them out, and start another episode from the review once it runs (n SEED)"
+        )
     ledger = Path(args.ledger) if args.ledger else args.log_dir / run_dirs.LEDGER_FILE
     state = Path(args.state) if args.state is not None else run_dirs.state_file(args.log_dir)
     missing = [name for name in CONFIG_FILES.values() if not (args.config / name).is_file()]
