@@ -182,7 +182,8 @@ def test_online_imitation_and_real_evaluation(agent_parts):
     assert lo <= result.mean <= hi
 
 
-@pytest.mark.parametrize("setting", ["online_il", "filtered_bc", "warm_start"])
+@pytest.mark.parametrize("setting", ["online_il", "filtered_bc", "filtered_bc_suboptimal", "imagined_returns",
+                                     "warm_start"])  # fmt: skip
 def test_table3_game(agent_parts, setting):
     from lwm_models.agent.table3 import run_game, summarize
 

@@ -230,6 +230,20 @@ def imagine_round(
     return imaginer.rollout(chosen, learner, n=episodes, max_steps=max_steps, seed=seed, constrained=constrained)
 
 
+def sampling_policy(
+    policy: EmmaPolicy, policy_manual, n: int, seed: int = 0
+) -> Callable[[np.ndarray, np.ndarray, int], np.ndarray]:
+    """An imagination policy callback: `policy` sampling its actions (a learnt expert plans)."""
+    gen = torch.Generator().manual_seed(seed)
+    with torch.no_grad():
+        id_values = policy.id_values(policy_manual).expand(n, -1, -1)
+
+    def sample(obs: np.ndarray, idx: np.ndarray, t: int) -> np.ndarray:
+        return act(policy, stack_history(obs), id_values[: len(idx)], sample=True, generator=gen)
+
+    return sample
+
+
 def imagined_states(im: Imagination, max_steps: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Every state with a next action in imagined trajectories, step by step: histories
     [m, 3, 4, 3], observations [m, 4, 3], their step index (0 = the start) and trajectory."""
