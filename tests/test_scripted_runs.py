@@ -47,8 +47,9 @@ def test_every_run_in_one_checkout_starts_clean_and_resume_shows_a_finished_revi
         assert "a new run in logs/runs/" in done.stdout
         runs.append((tmp_path / "logs" / "latest").resolve())
         kinds = [r["kind"] for r in Ledger(runs[-1] / "ledger.sqlite").history()]
-        # reviewed from its start (the agent teaches itself before its first plan)
-        assert kinds.count("report") == 1 and kinds[:4] == ["manual", "self_teaching", "policy", "plan"]
+        # reviewed from its start: the policy it opened with (what undo returns to), then the agent
+        # teaches itself before its first plan
+        assert kinds.count("report") == 1 and kinds[:5] == ["manual", "policy", "self_teaching", "policy", "plan"]
     assert runs[0] != runs[1] and runs[0].parent == runs[1].parent == tmp_path / "logs" / "runs"
     resumed = launch("--resume")
     assert resumed.returncode == 0 and "resuming the run in" in resumed.stdout, resumed.stdout[-3000:]
@@ -115,9 +116,10 @@ def test_scripted_review_loop_end_to_end_recorded_and_played_back(tmp_path):
         timeout=60,
     )
     shown_kinds = [line.split()[2] for line in shown.stdout.splitlines()[1:]]
-    # Under each manual the agent taught itself before its plan (the "taught" lines).
-    expected = ["manual", "taught", "policy", "plan", "manual", "taught", "policy", "plan"]
-    assert shown_kinds[:8] == expected, shown_kinds
+    # The policy the review opened with (what an undo returns to); then under each manual the agent
+    # taught itself before its plan (the "taught" lines).
+    expected = ["manual", "policy", "taught", "policy", "plan", "manual", "taught", "policy", "plan"]
+    assert shown_kinds[:9] == expected, shown_kinds
     assert "feedback" in shown_kinds and shown_kinds[-1] == "executed"
     records = Ledger(ledger).history()
     manuals = [r["payload"] for r in records if r["kind"] == "manual"]
