@@ -43,7 +43,7 @@ from .policy import policy_manual as read_policy_manual
 
 TABLE3_GAMES = 30  # games per split in the tables (Table 3, human effort, read-back)
 SETTINGS = ("online_il", "filtered_bc", "filtered_bc_suboptimal", "imagined_returns", "warm_start")
-SUBOPTIMAL_UPDATES = 40  # behaviour-cloning steps of the suboptimal expert: far from converged (docs/benchmarks.md)
+SUBOPTIMAL_UPDATES = 10  # behaviour-cloning steps of the suboptimal expert: far from converged (docs/benchmarks.md)
 
 
 def evenly_spaced_games(total: int, games: int) -> list[int]:
@@ -152,6 +152,7 @@ def run_game(
     elif setting == "filtered_bc_suboptimal":
         learnt = suboptimal_expert(warm, game, policy_manual, budget, seed)
         more["expert_return"] = evaluate_real(learnt, game, policy_manual, budget.eval_episodes, seed).mean
+        more["expert_updates"] = SUBOPTIMAL_UPDATES
         n = len(starts) * budget.plans_per_start
         filtered_behaviour_cloning(
             policy, world, world_manual, policy_manual, game, starts, budget, seed,
