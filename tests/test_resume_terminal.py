@@ -69,7 +69,8 @@ class Terminal:
             os.close(self.master)
 
 
-def test_resume_lands_on_the_review_that_was_open(tmp_path):
+def terminal_env() -> dict:
+    """A launcher's environment of its own: a free ROS domain, no run directory inherited."""
     env = {
         **os.environ,
         "ROS_DOMAIN_ID": str(domains.claim()),
@@ -78,6 +79,11 @@ def test_resume_lands_on_the_review_that_was_open(tmp_path):
     }
     env.pop("LWM_LOGS", None)
     env.pop("LWM_LEDGER", None)
+    return env
+
+
+def test_resume_lands_on_the_review_that_was_open(tmp_path):
+    env = terminal_env()
     run = tmp_path / "run"
     cmd = [sys.executable, "-m", "lwm_nodes.launcher", "--quiet", "--iterations", "2", "--futures", "2"]
 

@@ -6,15 +6,13 @@ step."""
 
 from __future__ import annotations
 
-import os
 import sys
 
 import pytest
 
 pytest.importorskip("rclpy")
 pytest.importorskip("lwm_interfaces")
-from lwm_nodes import domains  # noqa: E402
-from test_resume_terminal import PROMPT, Terminal  # noqa: E402
+from test_resume_terminal import PROMPT, Terminal, terminal_env  # noqa: E402
 
 from lwm_models.data.splits import load_split  # noqa: E402
 
@@ -27,14 +25,7 @@ WORDS = {"enemy": "is deadly: stay away from it", "message": "carries the secret
 def test_a_terminal_session_with_undo_and_the_report(tmp_path):
     game = load_split("newall-test")[0]
     mine = [f"the {e.identity} {WORDS[e.role]}" for e in game.entities]
-    env = {
-        **os.environ,
-        "ROS_DOMAIN_ID": str(domains.claim()),
-        "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST",
-        "PYTHONUNBUFFERED": "1",
-    }
-    env.pop("LWM_LOGS", None)
-    env.pop("LWM_LEDGER", None)
+    env = terminal_env()
     cmd = [sys.executable, "-m", "lwm_nodes.launcher", "--iterations", "1", "--futures", "2"]
     term = Terminal([*cmd, "--log-dir", str(tmp_path / "run")], env, tmp_path)
     review = "review newall-test:0:0"
