@@ -151,7 +151,7 @@ def print_table(rows: dict) -> None:
         cells = []
         for i, split in enumerate(SPLITS):
             r = row.get(split)
-            ref = f" [{paper[i]:+.2f}]" if paper else ""
+            ref = f" [{paper[i]:+.2f}]" if paper and paper[i] is not None else ""
             cells.append(
                 "-" if r is None else f"{r['mean']:+.2f} ({r['ci95'][0]:+.2f},{r['ci95'][1]:+.2f}) n{r['games']}{ref}"
             )
