@@ -47,7 +47,11 @@ from lwm_models.world.shipped import WORLD_MODELS  # noqa: E402
 PAPER_KIND = {"emma-hedged": "emma", "gpthard-hedged": "gpthard"}
 SHIPPED = tuple((m.key, PAPER_KIND.get(m.kind, m.kind), m.title, f"table1-2/{m.directory}.json") for m in WORLD_MODELS)
 TABLE3_MODELS = (("observational", "Observational"), ("emma", "EMMA-LWM"), ("oracle", "OracleParse"))
-TABLE3_SETTINGS = (("online_il", "Online IL"), ("filtered_bc", "Filtered BC"))
+TABLE3_SETTINGS = (
+    ("online_il", "Online IL"),
+    ("filtered_bc", "Filtered BC (near-optimal expert)"),
+    ("filtered_bc_suboptimal", "Filtered BC (suboptimal expert)"),
+)
 SPLIT_HEAD = "| NewCombo | NewAttr | NewAll |"
 
 
@@ -158,8 +162,10 @@ def table3(base: str) -> list[str]:
     lines = ["| setting | model " + SPLIT_HEAD, "|---|---|---|---|---|"]
     for setting, label in TABLE3_SETTINGS:
         for kind, name in TABLE3_MODELS:
-            row = rows[f"{setting}/{kind}"]
-            cells = [_return(row[s], paper[(setting, kind)][i]) for i, s in enumerate(SPLITS)]
+            row = rows.get(f"{setting}/{kind}", {})
+            cells = [
+                _return(row[s], paper[(setting, kind)][i]) if s in row else "not measured" for i, s in enumerate(SPLITS)
+            ]
             lines.append(f"| {label} | {name} | " + " | ".join(cells) + " |")
     return lines
 
