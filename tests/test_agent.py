@@ -182,8 +182,7 @@ def test_online_imitation_and_real_evaluation(agent_parts):
     assert lo <= result.mean <= hi
 
 
-@pytest.mark.parametrize("setting", ["online_il", "filtered_bc", "filtered_bc_suboptimal", "imagined_returns",
-                                     "warm_start"])  # fmt: skip
+@pytest.mark.parametrize("setting", ["online_il", "filtered_bc", "filtered_bc_suboptimal", "warm_start"])
 def test_table3_game(agent_parts, setting):
     from lwm_models.agent.table3 import run_game, summarize
 
@@ -328,3 +327,34 @@ def test_table3_gives_the_same_record_on_every_run_even_side_by_side(tmp_path):
         for i in range(2)
     ]
     assert records[0] == records[1] and len(records[0]) == 1 and records[0][0]["threads"] == 1
+
+
+def test_the_return_after_each_imagined_state_is_discounted_and_stops_at_the_end():
+    from lwm_models.agent.imagined_returns import advantages, returns_after
+
+    rewards = np.array([[0.0, 0.0, 0.5, 0.0, 1.0], [0.0, -1.0, 0.0, 0.0, 0.7]])
+    after = returns_after(rewards, np.array([5, 2]), gamma=0.5)
+    assert np.allclose(after[0], [0.5 * (0.5 + 0.5 * 0.5), 0.5 + 0.5 * 0.5, 0.5 * 1.0, 1.0, 0.0])
+    assert np.allclose(after[1], [-1.0, 0.0, 0.0, 0.0, 0.0])  # the 0.7 after its end is never earned
+    gain = advantages(np.array([1.0, 3.0, 5.0, 5.0]), np.array([0, 0, 1, 1]))
+    assert gain[1] > 0 > gain[0] and gain[2] == gain[3] == 0
+
+
+def test_learning_from_imagined_returns_changes_only_the_policy_and_reports_each_round(agent_parts):
+    from lwm_models.agent.imagined_returns import ImaginedReturns, learn_from_imagined_returns
+    from lwm_models.agent.learning import start_observations
+    from lwm_models.agent.policy import policy_manual
+
+    game, _, encoder = agent_parts
+    torch.manual_seed(0)
+    world = build_model("emma", PRESETS["tiny"]).eval()
+    policy = EmmaPolicy().eval()
+    before = {k: v.clone() for k, v in policy.state_dict().items()}
+    world_before = {k: v.clone() for k, v in world.state_dict().items()}
+    log = learn_from_imagined_returns(
+        policy, world, world.read_manual(MANUAL, encoder), policy_manual(MANUAL, encoder),
+        start_observations(game), ImaginedReturns(rounds=2, episodes=8), seed=3,
+    )  # fmt: skip
+    assert [e["round"] for e in log] == [1, 2] and all(e["states"] >= 8 for e in log)
+    assert any(not torch.equal(before[k], v) for k, v in policy.state_dict().items())
+    assert all(torch.equal(world_before[k], v) for k, v in world.state_dict().items())

@@ -1,18 +1,13 @@
 """Learning from the world model's imagined returns alone: no expert, no labels, no controller.
 
-The agent's own policy plans in the world model from each of the game's starts (sampling its
-actions); the plans whose imagined return is highest are cloned, and the improved policy plans
-again: expert iteration in imagination, the paper's filtered behaviour cloning with the agent as
-its own expert. Only the world model's imagined observations, rewards and terminations decide what
-is kept, so nothing here knows the game's rules or its roles.
-
-What is cloned of a plan is its prefix up to the step where its imagined return peaks: a plan that
-picks up the message and then dies still shows how to reach the message. A prefix is kept when its
-return is above `min_return` and it is among the best `keep` of its start's plans (ties to the
-shorter); prefixes kept in earlier rounds stay in the training set, so a success found once is not
-forgotten when a later round finds none from that start. A share of each round's plans explores:
-each of their actions is a uniform one with probability `explore` (a policy that always walks into
-the same death never finds the message otherwise).
+Policy gradient in imagination (REINFORCE with a baseline). Each round the agent's policy plays
+`episodes` imagined episodes from the game's first boards, sampling its actions, and takes a few
+gradient steps on them: each imagined state's action is made likelier in proportion to its
+advantage, how much the imagined return after it (discounted by `gamma`) beats the mean of the
+round's states at the same step, normalised over the round. An entropy bonus keeps it exploring.
+Only the world model's imagined observations, rewards and terminations decide what is learnt, so
+nothing here knows the game's rules, its roles or a way to play it: the world model, having read
+the manual, is the only source of what is good.
 """
 
 from __future__ import annotations
@@ -20,11 +15,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import torch
+import torch.nn.functional as F
 
-from ..messenger.constants import NUM_ACTIONS
-from ..world.base import WorldModel
-from ..world.imagine import Policy, imagine
-from .learning import fit_labels, labelled_states, sampling_policy
+from ..world.base import ManualBatch, WorldModel
+from ..world.imagine import imagine
+from .learning import imagined_states, sampling_policy
 from .policy import EmmaPolicy
 
 
@@ -32,88 +28,73 @@ from .policy import EmmaPolicy
 class ImaginedReturns:
     """How the agent learns from imagined returns."""
 
-    rounds: int = 6  # plan, keep, clone: how many times
-    plans_per_start: int = 8  # plans the policy imagines from each start per round
-    keep: float = 0.25  # the share of a start's plans (highest imagined return) that may be kept
-    min_return: float = 0.0  # ... and only those whose imagined return is above this
-    explore: float = 0.3  # the chance of a uniform action in an exploring plan
-    exploring: float = 0.5  # the share of each round's plans that explore
-    grad_steps: int = 60  # minibatch steps on every kept state after each round
-    batch: int = 256
-    lr: float = 1e-3
+    rounds: int = 30  # imagine, then learn: how many times
+    episodes: int = 96  # imagined episodes a round (the game's 24 first boards, 4 each)
+    updates: int = 4  # gradient steps a round, each on all of the round's states
+    lr: float = 3e-4  # Adam
+    gamma: float = 0.95  # discount of the imagined return after a state
+    entropy: float = 0.01  # weight of the policy's entropy in the loss
     constrained: bool = False  # imagine under the game's rules (decoding constraints)
 
 
-def peak_prefixes(rewards: np.ndarray, lengths: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Each imagined trajectory's peak return and the observations up to it ([N] each; the first
-    peak, 1 observation when nothing is ever earned)."""
-    steps = rewards.shape[1]
-    valid = np.arange(steps)[None, :] < lengths[:, None]
-    cum = np.where(valid, np.cumsum(rewards, axis=1), -np.inf)
-    at = cum.argmax(1)
-    return cum[np.arange(len(cum)), at], at + 1
+def returns_after(rewards: np.ndarray, lengths: np.ndarray, gamma: float) -> np.ndarray:
+    """[N, T + 1]: at s, the discounted imagined return of the steps after observation s
+    (rewards[:, t] is earned on the step into observation t; nothing after a trajectory's end)."""
+    earned = np.where(np.arange(rewards.shape[1])[None, :] < lengths[:, None], rewards, 0.0)
+    after = np.zeros_like(earned, dtype=np.float64)
+    acc = np.zeros(len(earned))
+    for t in range(earned.shape[1] - 1, 0, -1):
+        acc = earned[:, t] + gamma * acc
+        after[:, t - 1] = acc
+    return after
 
 
-def exploring_policy(policy: Policy, n: int, cfg: ImaginedReturns, seed: int) -> Policy:
-    """`policy`, but the last share of each start's cfg.plans_per_start trajectories (n in all,
-    start by start) take a uniform action with probability cfg.explore at each step."""
-    rng = np.random.default_rng(seed)
-    k = cfg.plans_per_start
-    explorers = np.arange(n) % k >= int(round(k * (1 - cfg.exploring)))
-
-    def act(obs: np.ndarray, idx: np.ndarray, t: int) -> np.ndarray:
-        actions = np.asarray(policy(obs, idx, t)).copy()
-        swap = explorers[idx] & (rng.random(len(idx)) < cfg.explore)
-        actions[swap] = rng.integers(NUM_ACTIONS, size=int(swap.sum()))
-        return actions
-
-    return act
+def advantages(returns: np.ndarray, steps: np.ndarray) -> np.ndarray:
+    """Each state's return minus the mean return of the states at its step, over their spread."""
+    baseline = np.zeros_like(returns)
+    for s in np.unique(steps):
+        at = steps == s
+        baseline[at] = returns[at].mean()
+    gain = returns - baseline
+    return gain / (gain.std() + 1e-6)
 
 
 def learn_from_imagined_returns(
     policy: EmmaPolicy,
     world: WorldModel,
-    world_manual,
-    policy_manual,
+    world_manual: ManualBatch,
+    policy_manual: ManualBatch,
     starts: np.ndarray,
     cfg: ImaginedReturns,
     seed: int = 0,
 ) -> list[dict]:
-    """Improve `policy` in place; one entry a round: the mean imagined return of its plans, how
-    many it kept, and the states cloned so far."""
+    """Improve `policy` in place; one entry a round: the mean imagined return of its episodes."""
     starts = np.asarray(starts, dtype=np.uint8).reshape(-1, 4, 3)
-    k = cfg.plans_per_start
-    first = np.repeat(starts, k, axis=0)
-    per_start = max(1, int(round(k * cfg.keep)))
-    hist_all: list[np.ndarray] = []
-    labels_all: list[np.ndarray] = []
+    first = starts[np.arange(cfg.episodes) % len(starts)]
+    opt = torch.optim.Adam(policy.parameters(), lr=cfg.lr)
     log = []
-    n = len(first)
     for r in range(cfg.rounds):
         round_seed = seed * 1_000 + r
         im = imagine(
-            world, world_manual, first, n=n, seed=round_seed, constrained=cfg.constrained,
-            policy=exploring_policy(sampling_policy(policy, policy_manual, n, round_seed), n, cfg, round_seed),
+            world, world_manual, first, n=len(first), seed=round_seed, constrained=cfg.constrained,
+            policy=sampling_policy(policy, policy_manual, len(first), round_seed),
         )  # fmt: skip
-        peak, upto = peak_prefixes(im.rewards, im.lengths)
-        # Best first within each start; ties to the shorter prefix, then the first drawn.
-        order = np.lexsort((np.arange(n), upto, -peak, np.arange(n) // k))
-        best = order.reshape(-1, k)[:, :per_start].ravel()
-        kept = best[peak[best] > cfg.min_return]
-        if len(kept):
-            hist, labels = labelled_states(im.observations[kept], upto[kept], im.actions.shape[1] - 1,
-                                           actions=im.actions[kept])  # fmt: skip
-            hist_all.append(hist)
-            labels_all.append(labels)
-        if hist_all:
-            fit_labels(
-                policy, policy_manual, np.concatenate(hist_all), np.concatenate(labels_all), cfg.grad_steps, cfg.lr,
-                cfg.batch, round_seed,
-            )  # fmt: skip
-        log.append({"round": r + 1, "imagined_return": float(im.returns.mean()), "kept": int(len(kept)),
-                    "kept_return": float(peak[kept].mean()) if len(kept) else None,
-                    "states": int(sum(len(h) for h in hist_all))})  # fmt: skip
+        hist, _, steps, traj = imagined_states(im, im.actions.shape[1] - 1)
+        gain = advantages(returns_after(im.rewards, im.lengths, cfg.gamma)[traj, steps], steps)
+        h = torch.from_numpy(np.ascontiguousarray(hist))
+        taken = torch.from_numpy(im.actions[traj, steps + 1].astype(np.int64))
+        weight = torch.from_numpy(gain).float()
+        policy.train()
+        for _ in range(cfg.updates):
+            logp = F.log_softmax(policy(h, policy.id_values(policy_manual).expand(len(h), -1, -1)), -1)
+            entropy = -(logp.exp() * logp).sum(-1).mean()
+            loss = -(weight * logp.gather(1, taken[:, None])[:, 0]).mean() - cfg.entropy * entropy
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+        policy.eval()
+        log.append({"round": r + 1, "imagined_return": float(im.returns.mean()), "states": len(h)})
     return log
 
 
-__all__ = ["ImaginedReturns", "learn_from_imagined_returns"]
+__all__ = ["ImaginedReturns", "advantages", "learn_from_imagined_returns", "returns_after"]

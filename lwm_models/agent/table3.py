@@ -145,8 +145,7 @@ def run_game(
     began, began_cpu = time.perf_counter(), time.process_time()
     more = {}
     if setting == "imagined_returns":
-        cfg = ImaginedReturns(plans_per_start=budget.plans_per_start, keep=budget.keep, batch=budget.batch,
-                              lr=budget.lr, constrained=budget.constrained)  # fmt: skip
+        cfg = ImaginedReturns(constrained=budget.constrained)
         log = learn_from_imagined_returns(policy, world, world_manual, policy_manual, starts, cfg, seed)
         more["imagined"] = log[-1]
     elif setting == "filtered_bc_suboptimal":
