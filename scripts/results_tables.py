@@ -373,7 +373,9 @@ def effort(base: str) -> list[str]:
     path = "human_effort/summary.json"
     summary = _load(path)
     budgets = sorted({b for row in summary.values() for b in row if b != "all"}, key=int)
-    head = " | ".join("manual only, 0 labels" if b == "0" else f"at most {b} labels" for b in budgets)
+    head = " | ".join(
+        "manual only, 0 labels (the rule-based expert labels)" if b == "0" else f"at most {b} labels" for b in budgets
+    )
     lines = [f"| world model | {head} | every imagined state labelled (Table 3) |", "|---" * (len(budgets) + 2) + "|"]
     for kind, name in (("emma", "EMMA-LWM"), ("observational", "Observational")):
         row = summary.get(kind)
@@ -673,7 +675,42 @@ def review_loop_reading(base: str) -> list[str]:
     return lines
 
 
+def no_controller(base: str) -> list[str]:
+    """The agent learning from its world model's imagined returns alone, beside the self-teaching
+    that distils the rule-based expert, on the same games (0 labels both)."""
+    from lwm_models.stats import mean_interval
+
+    path = "imagined-returns/records-10-games-newall.jsonl"
+    learnt = _load_jsonl(path)
+    expert = [r for r in _load_jsonl("human_effort/records.jsonl") if r["budget"] == 0]
+    names = {"emma-hedged": "EMMA-LWM, hedged reading (served)", "emma": "EMMA-LWM", "observational": "Observational"}
+    lines = [
+        "| world model | games | learns from imagined returns, no controller | self-teaching with the rule-based "
+        "expert, same games | learning time per game | file |",
+        "|---|---|---|---|---|---|",
+    ]
+    for model, name in names.items():
+        rows = [r for r in learnt if r["model"] == model]
+        if not rows:
+            continue
+        games = {r["game"] for r in rows}
+        mean, low, high = mean_interval([r["return"] for r in rows])
+        same = [r["return"] for r in expert if r["model"] == model and r["game"] in games]
+        if len(same) == len(games):
+            e_mean, e_low, e_high = mean_interval(same)
+            distilled = f"{e_mean:+.2f} ({e_low:+.2f}, {e_high:+.2f})"
+        else:
+            distilled = "not measured with this model"
+        secs = sum(r["learn_seconds"] for r in rows) / len(rows)
+        lines.append(
+            f"| {name} | {len(rows)} | {mean:+.2f} ({low:+.2f}, {high:+.2f}) | {distilled} | {secs:.0f} s "
+            f"| {_link(path, base)} |"
+        )
+    return lines
+
+
 TABLES: dict[str, Callable[[str], list[str]]] = {
+    "no-controller": no_controller,
     "before-acting": before_acting,
     "before-acting-styles": before_acting_styles,
     "before-acting-world": before_acting_world,
