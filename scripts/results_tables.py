@@ -676,36 +676,24 @@ def review_loop_reading(base: str) -> list[str]:
 
 
 def no_controller(base: str) -> list[str]:
-    """The agent learning from its world model's imagined returns alone, beside the self-teaching
-    that distils the rule-based expert, on the same games (0 labels both)."""
+    """The agent learning from its world model's imagined returns alone (0 labels)."""
     from lwm_models.stats import mean_interval
 
     path = "imagined-returns/records-10-games-newall.jsonl"
     learnt = _load_jsonl(path)
-    expert = [r for r in _load_jsonl("human_effort/records.jsonl") if r["budget"] == 0]
     names = {"emma-hedged": "EMMA-LWM, hedged reading (served)", "emma": "EMMA-LWM", "observational": "Observational"}
     lines = [
-        "| world model | games | learns from imagined returns, no controller | self-teaching with the rule-based "
-        "expert, same games | learning time per game | file |",
-        "|---|---|---|---|---|---|",
+        "| world model | games | real return, no controller, 0 labels | learning time per game | file |",
+        "|---|---|---|---|---|",
     ]
     for model, name in names.items():
         rows = [r for r in learnt if r["model"] == model]
-        if not rows:
-            continue
-        games = {r["game"] for r in rows}
-        mean, low, high = mean_interval([r["return"] for r in rows])
-        same = [r["return"] for r in expert if r["model"] == model and r["game"] in games]
-        if len(same) == len(games):
-            e_mean, e_low, e_high = mean_interval(same)
-            distilled = f"{e_mean:+.2f} ({e_low:+.2f}, {e_high:+.2f})"
-        else:
-            distilled = "not measured with this model"
-        secs = sum(r["learn_seconds"] for r in rows) / len(rows)
-        lines.append(
-            f"| {name} | {len(rows)} | {mean:+.2f} ({low:+.2f}, {high:+.2f}) | {distilled} | {secs:.0f} s "
-            f"| {_link(path, base)} |"
-        )
+        if rows:
+            mean, low, high = mean_interval([r["return"] for r in rows])
+            secs = sum(r["learn_seconds"] for r in rows) / len(rows)
+            lines.append(
+                f"| {name} | {len(rows)} | {mean:+.2f} ({low:+.2f}, {high:+.2f}) | {secs:.0f} s | {_link(path, base)} |"
+            )
     return lines
 
 
