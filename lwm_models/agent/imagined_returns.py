@@ -77,7 +77,7 @@ def learn_from_imagined_returns(
         round_seed = seed * 1_000 + r
         im = imagine(
             world, world_manual, first, n=len(first), seed=round_seed, constrained=cfg.constrained,
-            policy=sampling_policy(policy, policy_manual, len(first), round_seed),
+            policy=sampling_policy(policy, policy_manual, len(first), torch.Generator().manual_seed(round_seed)),
         )  # fmt: skip
         hist, _, steps, traj = imagined_states(im, im.actions.shape[1] - 1)
         gain = advantages(returns_after(im.rewards, im.lengths, cfg.gamma)[traj, steps], steps)

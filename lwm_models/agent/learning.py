@@ -25,7 +25,7 @@ from ..messenger.engine import BatchedMessenger
 from ..messenger.spec import GameSpec
 from ..stats import mean_interval
 from ..world.base import ManualBatch, WorldModel
-from ..world.imagine import Imagination
+from ..world.imagine import Imagination, Policy
 from .expert import expert_actions, role_ids
 from .policy import HISTORY, EmmaPolicy, act, stack_history
 
@@ -220,23 +220,15 @@ def imagine_round(
 ) -> Imagination:
     """One round of learning in imagination: `episodes` trajectories of `policy` (sampling with
     `gen`) through `imaginer`, from starts [k, 4, 3] drawn with `rng`."""
-    with torch.no_grad():
-        id_values = policy.id_values(manual).expand(episodes, -1, -1)
-
-    def learner(obs: np.ndarray, idx: np.ndarray, t: int) -> np.ndarray:
-        return act(policy, stack_history(obs), id_values[: len(idx)], sample=True, generator=gen)
-
     chosen = starts[rng.integers(len(starts), size=episodes)]
+    learner = sampling_policy(policy, manual, episodes, gen)
     return imaginer.rollout(chosen, learner, n=episodes, max_steps=max_steps, seed=seed, constrained=constrained)
 
 
-def sampling_policy(
-    policy: EmmaPolicy, policy_manual, n: int, seed: int = 0
-) -> Callable[[np.ndarray, np.ndarray, int], np.ndarray]:
-    """An imagination policy callback: `policy` sampling its actions (a learnt expert plans)."""
-    gen = torch.Generator().manual_seed(seed)
+def sampling_policy(policy: EmmaPolicy, manual: ManualBatch, n: int, gen: torch.Generator) -> Policy:
+    """An imagination policy callback for up to n trajectories: `policy` sampling its actions with `gen`."""
     with torch.no_grad():
-        id_values = policy.id_values(policy_manual).expand(n, -1, -1)
+        id_values = policy.id_values(manual).expand(n, -1, -1)
 
     def sample(obs: np.ndarray, idx: np.ndarray, t: int) -> np.ndarray:
         return act(policy, stack_history(obs), id_values[: len(idx)], sample=True, generator=gen)

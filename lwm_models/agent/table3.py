@@ -18,6 +18,7 @@ import copy
 import time
 
 import numpy as np
+import torch
 
 from ..messenger.constants import STARTS
 from ..messenger.engine import BatchedMessenger
@@ -155,7 +156,7 @@ def run_game(
         n = len(starts) * budget.plans_per_start
         filtered_behaviour_cloning(
             policy, world, world_manual, policy_manual, game, starts, budget, seed,
-            expert=sampling_policy(learnt, policy_manual, n, seed),
+            expert=sampling_policy(learnt, policy_manual, n, torch.Generator().manual_seed(seed)),
         )  # fmt: skip
     elif setting == "online_il":
         online_imitation_with(
