@@ -50,6 +50,11 @@ def test_the_roles_the_agent_acts_on_are_said_on_the_terminal_and_the_page():
     ]
     said = "the agent acts on: airplane the enemy (91% sure), ball the message (unsure), robot the goal (91% sure)"
     assert said in plan_text(plan) and plan_view(plan)["believes"] == said
+    for entry in plan["roles"]:  # a manual that says nothing usable: every role a guess
+        entry["p"] = 0.34
+    view = plan_view(plan)["believes"]
+    assert view.endswith("a guess: the manual says nothing the agent can use about who is who"), view
+    assert view in plan_text(plan)
 
 
 def test_the_agent_learning_from_a_manual_is_said_in_a_line():

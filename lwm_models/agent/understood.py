@@ -151,8 +151,13 @@ def read_roles(roles: list[dict]) -> str:
 
 def believed(roles: list[dict]) -> str:
     """The roles the agent acts on (a plan's "roles", agent/roles.py), as one sentence: what a
-    reviewer checks first, since a policy taught under a wrong role heads for the wrong entity."""
-    return "the agent acts on: " + read_roles(roles)
+    reviewer checks first, since a policy taught under a wrong role heads for the wrong entity.
+    Where no role is likelier than not, the sentence says the agent is guessing: a manual that
+    says nothing usable must not read like one that was understood."""
+    said = "the agent acts on: " + read_roles(roles)
+    if roles and all(entry["p"] < 0.5 for entry in roles):
+        said += " - a guess: the manual says nothing the agent can use about who is who"
+    return said
 
 
 __all__ = ["SAID_OF", "believed", "describe", "read_back", "read_roles"]

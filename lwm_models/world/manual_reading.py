@@ -51,7 +51,7 @@ import numpy as np
 
 from ..errors import LwmError
 from ..messenger.constants import ID_TO_IDENTITY, IDENTITIES, MOVEMENTS, ROLES, Triple
-from .sentence_reader import SENTENCE_FILE, SentenceReader
+from .sentence_reader import SENTENCE_FILE, SUBJECTS, SentenceReader
 
 FIELDS = ("identity", "movement", "role")
 VALUES: dict[str, tuple[str, ...]] = {"identity": tuple(IDENTITIES), "movement": MOVEMENTS, "role": ROLES}
@@ -77,17 +77,26 @@ class Evidence:
 
     def fact_class(self) -> tuple[str, tuple[str, ...]]:
         """The class of the identity and its candidates, first the one the class's rate backs: the
-        words' entity where they name one, else the model's."""
+        words' entity where they name one, else the model's. A text the sentence reader takes to be
+        about no entity of the game is a class of its own ("guessed/agree/stray"), since a guess at
+        the entity of a text about a dragon, or about nothing, is seldom right."""
         words = self.named or self.guessed
         said = "named" if self.named else "guessed" if self.guessed else "open"
         model = None if self.model is None else self.model[0]
+        stray = "/stray" if self.stray else ""
         if model is None:
-            return f"{said}/no-model", (words,) if words else ()
+            return f"{said}/no-model{stray}", (words,) if words else ()
         if not words:
-            return "open/model", (model,)
+            return f"open/model{stray}", (model,)
         if model == words:
-            return f"{said}/agree", (words,)
-        return f"{said}/differ", (words, model)
+            return f"{said}/agree{stray}", (words,)
+        return f"{said}/differ{stray}", (words, model)
+
+    @property
+    def stray(self) -> bool:
+        """The sentence reader finds the text likelier about no entity of the game than about one."""
+        subject = self.sentence.get("subject")
+        return subject is not None and math.exp(subject[SUBJECTS.index("entity")]) < 0.5
 
     def features(self, name: str) -> np.ndarray:
         """[3, 3]: per value of a movement or role, the words' one-hot, the model's one-hot and the
@@ -180,7 +189,7 @@ def fit_identity_rates(
     rates = {}
     for cls, (first, second, seen, n) in counts.items():
         rates[cls] = {"first": round((first + prior * chance) / (seen + prior), 4), "n": n}
-        if cls.endswith("/differ"):
+        if "/differ" in cls:
             rates[cls]["second"] = round((second + prior * chance) / (seen + prior), 4)
     return rates
 

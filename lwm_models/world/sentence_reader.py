@@ -1,10 +1,14 @@
-"""The sentence reader: a description's movement and role, read by the text encoder tuned for it.
+"""The sentence reader: a description's movement, role and subject, read by the text encoder tuned for it.
 
 A person's words state a fact in any order and often by denying the others ("it is not the goal,
 you carry it there"), which a bag of word vectors cannot tell from the fact itself. The reader
 keeps the frozen all-MiniLM-L6-v2 (`frozen_text.py`) and adds low-rank adapters to the query and
 value projections of each of its attention layers, with one linear head per fact over the mean
-token vector, trained on descriptions of known truth (`scripts/fit_reading.py`). The adapters and
+token vector, trained on descriptions of known truth (`scripts/fit_reading.py`). The third fact, the subject,
+says whether a text is about an entity of the game at all, about some other thing ("the dragon
+chases you"), or about nothing (gibberish, small talk): a keyword-free guess at the entity means
+little when the text is about a dragon. A fact a text does not state (stray text's movement and
+role) is trained towards even odds, so text that says nothing is read as saying nothing. The adapters and
 heads are about 76k numbers a fold, so they ship beside a checkpoint in half precision
 (`reading_sentence.safetensors`, 300 kB).
 
@@ -29,7 +33,8 @@ from torch.nn import functional as F
 
 from ..errors import LwmError
 
-FACTS = ("movement", "role")
+FACTS = ("movement", "role", "subject")
+SUBJECTS = ("entity", "other", "nothing")  # an entity of the game; a thing of no Messenger game; nothing
 SENTENCE_FILE = "reading_sentence.safetensors"  # beside a checkpoint's reading.json
 
 
@@ -70,7 +75,7 @@ class _Adapted(nn.Module):
 
 
 class SentenceReader(nn.Module):
-    """Texts -> per fact, [N, 3] log-probabilities of its values (MOVEMENTS, ROLES order)."""
+    """Texts -> per fact, [N, 3] log-probabilities of its values (MOVEMENTS, ROLES, SUBJECTS order)."""
 
     def __init__(self, cfg: SentenceReaderConfig = SentenceReaderConfig(), model_path: str | None = None):
         super().__init__()
@@ -173,8 +178,9 @@ def fit_sentence_reader(
     progress: Callable[[str], None] = print,
 ) -> tuple[SentenceReader, dict[str, np.ndarray]]:
     """Train every fold's adapters on the descriptions outside it and read the descriptions inside
-    it with them. `truth[fact]` [N] value indices, `known[fact]` [N] whether the fact is stated (stray
-    text has none), `weights` [N] each description's sampling weight, `folds` [N] in 0..folds-1.
+    it with them. `truth[fact]` [N] value indices, `known[fact]` [N] whether the fact is stated (an
+    unstated one is trained towards even odds), `weights` [N] each description's sampling weight,
+    `folds` [N] in 0..folds-1.
     Returns the reader and, per fact, the held-out log-probabilities [N, 3]."""
     torch.manual_seed(seed)
     rng = np.random.default_rng(seed)
@@ -192,10 +198,12 @@ def fit_sentence_reader(
             logits = reader.logits([texts[i] for i in idx], fold=k)[0]  # [B, facts, 3]
             loss = torch.zeros(())
             for j, name in enumerate(FACTS):
+                if name not in truth:  # a fact this text has no truth of trains nothing
+                    continue
                 stated = torch.as_tensor(known[name][idx])
-                if stated.any():
-                    target = torch.as_tensor(truth[name][idx])
-                    loss = loss + F.cross_entropy(logits[stated, j], target[stated])
+                target = F.one_hot(torch.as_tensor(truth[name][idx]), 3).float()
+                target[~stated] = 1 / 3
+                loss = loss + F.cross_entropy(logits[:, j], target)
             opt.zero_grad()
             loss.backward()
             opt.step()
@@ -210,4 +218,4 @@ def fit_sentence_reader(
     return reader.eval(), held_out
 
 
-__all__ = ["FACTS", "SENTENCE_FILE", "SentenceReader", "SentenceReaderConfig", "fit_sentence_reader"]
+__all__ = ["FACTS", "SENTENCE_FILE", "SUBJECTS", "SentenceReader", "SentenceReaderConfig", "fit_sentence_reader"]
