@@ -12,7 +12,9 @@ imitation (the simulated person labels every imagined state) from its records, f
 
 Records are appended one per (model, game, budget), so a run can stop and resume; `--from-records`
 only makes the summary, the table and the plot. The summary (`--summary`) has the shape
-{model: {budget: {"mean", "low", "high", "games", "labels_asked"}}} with budget "all" for every state.
+{model: {budget: {"mean", "low", "high", "games", "labels_asked"}}} with budget "all" for every state
+and "none" for the agent with no controller: it learns from the world model's imagined returns alone,
+no labels (Table 3's `imagined_returns` records, results/imagined-returns/).
 """
 
 from __future__ import annotations
@@ -33,6 +35,9 @@ EVERY_STATE = {
     "emma": TABLE3 / "records-30-games-emma-lwm.jsonl",
     "observational": TABLE3 / "records-30-games-observational.jsonl",
 }
+# The agent that learns from imagined returns alone, no controller and no labels (Table 3's
+# `imagined_returns` setting, lwm_models/agent/imagined_returns.py), on the same games.
+NO_CONTROLLER = ROOT / "results" / "imagined-returns" / "records-30-games-newall.jsonl"
 
 
 def run(args: argparse.Namespace) -> list[dict]:
@@ -135,12 +140,13 @@ def run(args: argparse.Namespace) -> list[dict]:
     return records
 
 
-def every_state(model: str, games: set[int], split: str) -> list[float]:
-    path = EVERY_STATE.get(model)
+def table3_returns(path: Path | None, setting: str, model: str, games: set[int], split: str) -> list[float]:
+    """The real returns a Table 3 records file holds for `setting` and `model` on these games."""
     if path is None or not path.is_file():
         return []
     rows = [json.loads(line) for line in path.open() if line.strip()]
-    return [r["return"] for r in rows if r["setting"] == "online_il" and r["split"] == split and r["game"] in games]
+    wanted = {"setting": setting, "model": model, "split": split}
+    return [r["return"] for r in rows if all(r[k] == v for k, v in wanted.items()) and r["game"] in games]
 
 
 def summarize(records: list[dict], split: str) -> dict:
@@ -169,23 +175,26 @@ def summarize(records: list[dict], split: str) -> dict:
                 "targets_right": sum(r.get("targets_right", r["roles_right"]) for r in rows),
                 "wait_seconds_median": round(float(np.median([r["wait_seconds"] for r in rows])), 2),
             }
-        full = every_state(model, games, split)
-        if len(full) == len(games) and len(full) > 1:
-            mean, lo, hi = mean_interval(full)
-            out[model]["all"] = {
-                "mean": round(mean, 4),
-                "low": round(lo, 4),
-                "high": round(hi, 4),
-                "games": len(full),
-                "labels_asked": None,  # every imagined state of 40 rounds (Table 3's online imitation)
-            }
+        # "all": every imagined state labelled (Table 3's online imitation); "none": no controller
+        # and no labels, the agent learning from imagined returns alone.
+        for key, path, setting in (("all", EVERY_STATE.get(model), "online_il"),
+                                   ("none", NO_CONTROLLER, "imagined_returns")):  # fmt: skip
+            found = table3_returns(path, setting, model, games, split)
+            if len(found) == len(games) and len(found) > 1:
+                mean, lo, hi = mean_interval(found)
+                out[model][key] = {"mean": round(mean, 4), "low": round(lo, 4), "high": round(hi, 4),
+                                   "games": len(found), "labels_asked": None}  # fmt: skip
     return out
 
 
 def print_table(summary: dict) -> None:
-    budgets = sorted({b for m in summary.values() for b in m}, key=lambda b: (b == "all", int(b) if b != "all" else 0))
+    budgets = sorted(
+        {b for m in summary.values() for b in m},
+        key=lambda b: (b != "none", b == "all", 0 if b in ("all", "none") else int(b)),
+    )
     print("real return (95% t interval over games) against the labels a person was asked for, NewAll test")
-    print(f"{'model':<14}" + "".join(f"  {('every state' if b == 'all' else b + ' labels'):>32}" for b in budgets))
+    named = {"all": "every state", "none": "no controller"}
+    print(f"{'model':<14}" + "".join(f"  {named.get(b, b + ' labels'):>32}" for b in budgets))
     for model, row in summary.items():
         cells = []
         for b in budgets:
@@ -206,13 +215,17 @@ def plot(summary: dict, path: Path) -> None:
 
     fig, ax = plt.subplots(figsize=(6.4, 4.2))
     for model, row in summary.items():
-        budgets = [b for b in row if b != "all"]
+        budgets = [b for b in row if b not in ("all", "none")]
         xs = [max(row[b]["labels_asked"], 0.5) for b in budgets]
         ys = [row[b]["mean"] for b in budgets]
         err = [[row[b]["mean"] - row[b]["low"] for b in budgets], [row[b]["high"] - row[b]["mean"] for b in budgets]]
         line = ax.errorbar(xs, ys, yerr=err, marker="o", capsize=3, label=f"{model}: self-teaching")
         if "all" in row:
             ax.axhline(row["all"]["mean"], color=line[0].get_color(), ls="--", label=f"{model}: every state labelled")
+        if "none" in row:
+            ax.axhline(
+                row["none"]["mean"], color=line[0].get_color(), ls="-.", label=f"{model}: no controller, 0 labels"
+            )
     ax.axhline(0.62, color="grey", ls=":", label="paper, EMMA-LWM, every state (0.62)")
     ax.set_xscale("log")
     ax.set_xlabel("labels the person was asked for, per game (mean; 0 drawn at 0.5)")

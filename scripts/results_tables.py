@@ -372,17 +372,22 @@ def effort(base: str) -> list[str]:
     """Real return against the labels a person was asked for (benchmarks/human_effort.py)."""
     path = "human_effort/summary.json"
     summary = _load(path)
-    budgets = sorted({b for row in summary.values() for b in row if b != "all"}, key=int)
+    budgets = sorted({b for row in summary.values() for b in row if b not in ("all", "none")}, key=int)
     head = " | ".join(
         "manual only, 0 labels (the rule-based expert labels)" if b == "0" else f"at most {b} labels" for b in budgets
     )
-    lines = [f"| world model | {head} | every imagined state labelled (Table 3) |", "|---" * (len(budgets) + 2) + "|"]
+    learnt = any("none" in row for row in summary.values())  # the agent with no controller, where measured
+    first = "manual only, no controller (learns from imagined returns) | " if learnt else ""
+    lines = [
+        f"| world model | {first}{head} | every imagined state labelled (Table 3) |",
+        "|---" * (len(budgets) + 2 + learnt) + "|",
+    ]
     for kind, name in (("emma", "EMMA-LWM"), ("observational", "Observational")):
         row = summary.get(kind)
         if row is None:
             continue
         cells = []
-        for b in [*budgets, "all"]:
+        for b in ["none"] * learnt + [*budgets, "all"]:
             c = row.get(b)
             if c is None:
                 cells.append("not measured")
