@@ -681,24 +681,28 @@ def review_loop_reading(base: str) -> list[str]:
 
 
 def no_controller(base: str) -> list[str]:
-    """The agent learning from its world model's imagined returns alone (0 labels)."""
+    """The agent learning from its world model's imagined returns alone (0 labels): Table 3's 30
+    NewAll games, and 10 evenly spaced ones."""
     from lwm_models.stats import mean_interval
 
-    path = "imagined-returns/records-10-games-newall.jsonl"
-    learnt = _load_jsonl(path)
     names = {"emma-hedged": "EMMA-LWM, hedged reading (served)", "emma": "EMMA-LWM", "observational": "Observational"}
     lines = [
         "| world model | games | real return, no controller, 0 labels | learning time per game | file |",
         "|---|---|---|---|---|",
     ]
-    for model, name in names.items():
-        rows = [r for r in learnt if r["model"] == model]
-        if rows:
-            mean, low, high = mean_interval([r["return"] for r in rows])
-            secs = sum(r["learn_seconds"] for r in rows) / len(rows)
-            lines.append(
-                f"| {name} | {len(rows)} | {mean:+.2f} ({low:+.2f}, {high:+.2f}) | {secs:.0f} s | {_link(path, base)} |"
-            )
+    for path, games in (("imagined-returns/records-30-games-newall.jsonl", "Table 3's 30"),
+                        ("imagined-returns/records-10-games-newall.jsonl", "10 evenly spaced")):  # fmt: skip
+        if not (RESULTS / path).is_file():
+            continue
+        learnt = _load_jsonl(path)
+        for model, name in names.items():
+            rows = [r for r in learnt if r["model"] == model]
+            if rows:
+                mean, low, high = mean_interval([r["return"] for r in rows])
+                secs = sum(r["learn_seconds"] for r in rows) / len(rows)
+                lines.append(
+                    f"| {name} | {games} | {mean:+.2f} ({low:+.2f}, {high:+.2f}) | {secs:.0f} s | {_link(path, base)} |"
+                )
     return lines
 
 
