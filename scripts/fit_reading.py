@@ -217,9 +217,10 @@ def main() -> int:
             texts += found
             truth += [t] * len(found)
             weights += [1.0 / n] * len(found)
-    weights = [w * len(texts) / len(sources) for w in weights]
-    sampled = np.asarray([w * (STRAY_SAMPLED if t[0] == "?" else 1.0) for w, t in zip(weights, truth, strict=True)])
-    weights = [w * (STRAY_WEIGHT if t[0] == "?" else 1.0) for w, t in zip(weights, truth, strict=True)]
+    per_source = np.asarray(weights) * len(texts) / len(sources)
+    stray = np.array([t[0] == "?" for t in truth])
+    sampled = np.where(stray, STRAY_SAMPLED, 1.0) * per_source
+    weights = (np.where(stray, STRAY_WEIGHT, 1.0) * per_source).tolist()
     print(f"fitting on {len(texts)} descriptions: " + ", ".join(
         f"{s} {sum(len(v) for v in b.values())}" for s, b in sources.items()), flush=True)  # fmt: skip
     weights_a = np.asarray(weights)

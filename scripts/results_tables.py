@@ -380,14 +380,14 @@ def effort(base: str) -> list[str]:
     first = "manual only, no controller (learns from imagined returns) | " if learnt else ""
     lines = [
         f"| world model | {first}{head} | every imagined state labelled (Table 3) |",
-        "|---" * (len(budgets) + 2 + learnt) + "|",
+        "|---" * (len(budgets) + (3 if learnt else 2)) + "|",
     ]
     for kind, name in (("emma", "EMMA-LWM"), ("observational", "Observational")):
         row = summary.get(kind)
         if row is None:
             continue
         cells = []
-        for b in ["none"] * learnt + [*budgets, "all"]:
+        for b in (["none"] if learnt else []) + [*budgets, "all"]:
             c = row.get(b)
             if c is None:
                 cells.append("not measured")

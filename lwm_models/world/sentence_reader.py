@@ -1,16 +1,16 @@
-"""The sentence reader: a description's movement, role and subject, read by the text encoder tuned for it.
+"""The sentence reader: a description's movement, role and subject, read by a tuned text encoder.
 
 A person's words state a fact in any order and often by denying the others ("it is not the goal,
 you carry it there"), which a bag of word vectors cannot tell from the fact itself. The reader
 keeps the frozen all-MiniLM-L6-v2 (`frozen_text.py`) and adds low-rank adapters to the query and
 value projections of each of its attention layers, with one linear head per fact over the mean
-token vector, trained on descriptions of known truth (`scripts/fit_reading.py`). The third fact, the subject,
-says whether a text is about an entity of the game at all, about some other thing ("the dragon
-chases you"), or about nothing (gibberish, small talk): a keyword-free guess at the entity means
-little when the text is about a dragon. A fact a text does not state (stray text's movement and
-role) is trained towards even odds, so text that says nothing is read as saying nothing. The adapters and
-heads are about 76k numbers a fold, so they ship beside a checkpoint in half precision
-(`reading_sentence.safetensors`, 300 kB).
+token vector, trained on descriptions of known truth (`scripts/fit_reading.py`). The third fact,
+the subject, says whether a text is about an entity of the game at all, about some other thing
+("the dragon chases you"), or about nothing (gibberish, small talk): a keyword-free guess at the
+entity means little when the text is about a dragon. A fact a text does not state (stray text's
+movement and role) is trained towards even odds, so text that says nothing is read as saying
+nothing. The adapters and heads are about 76k numbers a fold, so they ship beside a checkpoint in
+half precision (`reading_sentence.safetensors`, 300 kB).
 
 Cross-fitting: the text is split in `folds` parts and each fold's adapters are trained on the
 others, so every fitting description has a reading by adapters that never saw it; the reading's
@@ -198,7 +198,7 @@ def fit_sentence_reader(
             logits = reader.logits([texts[i] for i in idx], fold=k)[0]  # [B, facts, 3]
             loss = torch.zeros(())
             for j, name in enumerate(FACTS):
-                if name not in truth:  # a fact this text has no truth of trains nothing
+                if name not in truth:  # a fact the caller gives no truth for is not trained
                     continue
                 stated = torch.as_tensor(known[name][idx])
                 target = F.one_hot(torch.as_tensor(truth[name][idx]), 3).float()
