@@ -330,14 +330,26 @@ def test_table3_gives_the_same_record_on_every_run_even_side_by_side(tmp_path):
 
 
 def test_the_return_after_each_imagined_state_is_discounted_and_stops_at_the_end():
-    from lwm_models.agent.imagined_returns import advantages, returns_after
+    from lwm_models.agent.imagined_returns import returns_after
 
     rewards = np.array([[0.0, 0.0, 0.5, 0.0, 1.0], [0.0, -1.0, 0.0, 0.0, 0.7]])
     after = returns_after(rewards, np.array([5, 2]), gamma=0.5)
     assert np.allclose(after[0], [0.5 * (0.5 + 0.5 * 0.5), 0.5 + 0.5 * 0.5, 0.5 * 1.0, 1.0, 0.0])
     assert np.allclose(after[1], [-1.0, 0.0, 0.0, 0.0, 0.0])  # the 0.7 after its end is never earned
-    gain = advantages(np.array([1.0, 3.0, 5.0, 5.0]), np.array([0, 0, 1, 1]))
-    assert gain[1] > 0 > gain[0] and gain[2] == gain[3] == 0
+
+
+def test_an_imagined_state_is_judged_against_its_own_boards_episodes_at_the_same_step():
+    from lwm_models.agent.imagined_returns import group_advantages
+
+    returns = np.array([1.0, 3.0, 10.0, 12.0, 5.0, 7.0, 4.0])
+    steps = np.array([0, 0, 0, 0, 1, 1, 1])
+    groups = np.array([0, 0, 1, 1, 0, 0, 1])
+    gain = group_advantages(returns, steps, groups)
+    # board 1's returns are higher, yet each board's worse episode is below its own mean
+    assert gain[0] < 0 < gain[1] and gain[2] < 0 < gain[3]
+    assert np.isclose(gain[0], gain[2]) and np.isclose(gain[1], gain[3])
+    # alone at its step on board 1, a state is judged against every state at that step
+    assert np.isclose(gain[6], (4.0 - 16.0 / 3) / np.std(returns - [2, 2, 11, 11, 6, 6, 16 / 3]), atol=1e-4)
 
 
 def test_learning_from_imagined_returns_changes_only_the_policy_and_reports_each_round(agent_parts):
@@ -353,7 +365,7 @@ def test_learning_from_imagined_returns_changes_only_the_policy_and_reports_each
     world_before = {k: v.clone() for k, v in world.state_dict().items()}
     log = learn_from_imagined_returns(
         policy, world, world.read_manual(MANUAL, encoder), policy_manual(MANUAL, encoder),
-        start_observations(game), ImaginedReturns(rounds=2, episodes=8), seed=3,
+        start_observations(game), ImaginedReturns(rounds=2, group=1, minibatch=16), seed=3,
     )  # fmt: skip
     assert [e["round"] for e in log] == [1, 2] and all(e["states"] >= 8 for e in log)
     assert any(not torch.equal(before[k], v) for k, v in policy.state_dict().items())

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import copy
 import time
+from dataclasses import asdict
 
 import numpy as np
 import torch
@@ -146,9 +147,10 @@ def run_game(
     began, began_cpu = time.perf_counter(), time.process_time()
     more = {}
     if setting == "imagined_returns":
-        cfg = ImaginedReturns(constrained=budget.constrained)
+        cfg = ImaginedReturns()  # always under the game's rules (its own config), whatever the budget says
         log = learn_from_imagined_returns(policy, world, world_manual, policy_manual, starts, cfg, seed)
         more["imagined"] = log[-1]
+        more["learner"] = asdict(cfg)
     elif setting == "filtered_bc_suboptimal":
         learnt = suboptimal_expert(warm, game, policy_manual, budget, seed)
         more["expert_return"] = evaluate_real(learnt, game, policy_manual, budget.eval_episodes, seed).mean
