@@ -47,11 +47,12 @@ from lwm_models.world.shipped import WORLD_MODELS  # noqa: E402
 PAPER_KIND = {"emma-hedged": "emma", "gpthard-hedged": "gpthard"}
 SHIPPED = tuple((m.key, PAPER_KIND.get(m.kind, m.kind), m.title, f"table1-2/{m.directory}.json") for m in WORLD_MODELS)
 TABLE3_MODELS = (("observational", "Observational"), ("emma", "EMMA-LWM"), ("oracle", "OracleParse"))
-TABLE3_SETTINGS = (
-    ("online_il", "Online IL"),
-    ("filtered_bc", "Filtered BC (near-optimal expert)"),
-    ("filtered_bc_suboptimal", "Filtered BC (suboptimal expert)"),
+TABLE3_SETTINGS = (  # (setting, label, what it learns from: which rows rest on the hand-written controller)
+    ("online_il", "Online IL", "the rule-based expert's labels"),
+    ("filtered_bc", "Filtered BC (near-optimal expert)", "the rule-based expert's imagined plans"),
+    ("filtered_bc_suboptimal", "Filtered BC (suboptimal expert)", "a policy cloned from the rule-based expert"),
 )
+NO_CONTROLLER_RECORDS = "imagined-returns/records-30-games-newall.jsonl"
 SPLIT_HEAD = "| NewCombo | NewAttr | NewAll |"
 
 
@@ -159,14 +160,25 @@ def _return(row: dict, paper: float | None) -> str:
 
 def table3(base: str) -> list[str]:
     rows, paper = _load("table3/summary-30-games.json")["rows"], _paper_table3()
-    lines = ["| setting | model " + SPLIT_HEAD, "|---|---|---|---|---|"]
-    for setting, label in TABLE3_SETTINGS:
+    from lwm_models.stats import mean_interval
+
+    lines = ["| setting | learns from | model " + SPLIT_HEAD, "|---|---|---|---|---|---|"]
+    for setting, label, source in TABLE3_SETTINGS:
         for kind, name in TABLE3_MODELS:
             row = rows.get(f"{setting}/{kind}", {})
             cells = [
                 _return(row[s], paper[(setting, kind)][i]) if s in row else "not measured" for i, s in enumerate(SPLITS)
             ]
-            lines.append(f"| {label} | {name} | " + " | ".join(cells) + " |")
+            lines.append(f"| {label} | {source} | {name} | " + " | ".join(cells) + " |")
+    learnt = _load_jsonl(NO_CONTROLLER_RECORDS) if (RESULTS / NO_CONTROLLER_RECORDS).is_file() else []
+    for kind, name in TABLE3_MODELS:
+        returns = [r["return"] for r in learnt if r["model"] == kind and r["split"] == "newall-test"]
+        if returns:
+            mean, low, high = mean_interval(returns)
+            lines.append(
+                f"| Imagined returns | the world model alone (no controller) | {name} | not measured | not measured "
+                f"| {mean:+.2f} ({low:+.2f}, {high:+.2f}) |"
+            )
     return lines
 
 
@@ -682,27 +694,25 @@ def review_loop_reading(base: str) -> list[str]:
 
 def no_controller(base: str) -> list[str]:
     """The agent learning from its world model's imagined returns alone (0 labels): Table 3's 30
-    NewAll games, and 10 evenly spaced ones."""
+    NewAll games."""
     from lwm_models.stats import mean_interval
 
-    names = {"emma-hedged": "EMMA-LWM, hedged reading (served)", "emma": "EMMA-LWM", "observational": "Observational"}
     lines = [
-        "| world model | games | real return, no controller, 0 labels | learning time per game | file |",
-        "|---|---|---|---|---|",
+        "| world model | games | real return, no controller, 0 labels | imagined return, last round "
+        "| learning time per game | file |",
+        "|---|---|---|---|---|---|",
     ]
-    for path, games in (("imagined-returns/records-30-games-newall.jsonl", "Table 3's 30"),
-                        ("imagined-returns/records-10-games-newall.jsonl", "10 evenly spaced")):  # fmt: skip
-        if not (RESULTS / path).is_file():
-            continue
-        learnt = _load_jsonl(path)
-        for model, name in names.items():
-            rows = [r for r in learnt if r["model"] == model]
-            if rows:
-                mean, low, high = mean_interval([r["return"] for r in rows])
-                secs = sum(r["learn_seconds"] for r in rows) / len(rows)
-                lines.append(
-                    f"| {name} | {games} | {mean:+.2f} ({low:+.2f}, {high:+.2f}) | {secs:.0f} s | {_link(path, base)} |"
-                )
+    learnt = _load_jsonl(NO_CONTROLLER_RECORDS)
+    for kind, name in TABLE3_MODELS:
+        rows = [r for r in learnt if r["model"] == kind]
+        if rows:
+            mean, low, high = mean_interval([r["return"] for r in rows])
+            imagined = sum(r["imagined"]["imagined_return"] for r in rows) / len(rows)
+            secs = sum(r["learn_seconds"] for r in rows) / len(rows)
+            lines.append(
+                f"| {name} | Table 3's {len(rows)} | {mean:+.2f} ({low:+.2f}, {high:+.2f}) | {imagined:+.2f} "
+                f"| {secs:.0f} s | {_link(NO_CONTROLLER_RECORDS, base)} |"
+            )
     return lines
 
 
