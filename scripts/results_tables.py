@@ -53,6 +53,7 @@ TABLE3_SETTINGS = (  # (setting, label, what it learns from: which rows rest on 
     ("filtered_bc_suboptimal", "Filtered BC (suboptimal expert)", "a policy cloned from the rule-based expert"),
 )
 NO_CONTROLLER_RECORDS = "imagined-returns/records-30-games-newall.jsonl"
+SERVED_NO_CONTROLLER_RECORDS = "imagined-returns/records-10-games-newall.jsonl"  # the served model, fewer games
 SPLIT_HEAD = "| NewCombo | NewAttr | NewAll |"
 
 
@@ -702,17 +703,20 @@ def no_controller(base: str) -> list[str]:
         "| learning time per game | file |",
         "|---|---|---|---|---|---|",
     ]
-    learnt = _load_jsonl(NO_CONTROLLER_RECORDS)
-    for kind, name in TABLE3_MODELS:
-        rows = [r for r in learnt if r["model"] == kind]
-        if rows:
-            mean, low, high = mean_interval([r["return"] for r in rows])
-            imagined = sum(r["imagined"]["imagined_return"] for r in rows) / len(rows)
-            secs = sum(r["learn_seconds"] for r in rows) / len(rows)
-            lines.append(
-                f"| {name} | Table 3's {len(rows)} | {mean:+.2f} ({low:+.2f}, {high:+.2f}) | {imagined:+.2f} "
-                f"| {secs:.0f} s | {_link(NO_CONTROLLER_RECORDS, base)} |"
-            )
+    served = ("emma-hedged", "EMMA-LWM, hedged reading (served)")
+    for path, games, models in ((NO_CONTROLLER_RECORDS, "Table 3's", TABLE3_MODELS),
+                                (SERVED_NO_CONTROLLER_RECORDS, "evenly spaced", (served,))):  # fmt: skip
+        learnt = _load_jsonl(path)
+        for kind, name in models:
+            rows = [r for r in learnt if r["model"] == kind]
+            if rows:
+                mean, low, high = mean_interval([r["return"] for r in rows])
+                imagined = sum(r["imagined"]["imagined_return"] for r in rows) / len(rows)
+                secs = sum(r["learn_seconds"] for r in rows) / len(rows)
+                lines.append(
+                    f"| {name} | {len(rows)}, {games} | {mean:+.2f} ({low:+.2f}, {high:+.2f}) | {imagined:+.2f} "
+                    f"| {secs:.0f} s | {_link(path, base)} |"
+                )
     return lines
 
 
