@@ -160,9 +160,9 @@ def _return(row: dict, paper: float | None) -> str:
 
 
 def table3(base: str) -> list[str]:
-    rows, paper = _load("table3/summary-30-games.json")["rows"], _paper_table3()
     from lwm_models.stats import mean_interval
 
+    rows, paper = _load("table3/summary-30-games.json")["rows"], _paper_table3()
     lines = ["| setting | learns from | model " + SPLIT_HEAD, "|---|---|---|---|---|---|"]
     for setting, label, source in TABLE3_SETTINGS:
         for kind, name in TABLE3_MODELS:
@@ -695,7 +695,7 @@ def review_loop_reading(base: str) -> list[str]:
 
 def no_controller(base: str) -> list[str]:
     """The agent learning from its world model's imagined returns alone (0 labels): Table 3's 30
-    NewAll games."""
+    NewAll games, and the served model on 10 evenly spaced ones."""
     from lwm_models.stats import mean_interval
 
     lines = [

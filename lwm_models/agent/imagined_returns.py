@@ -11,8 +11,9 @@ round was played with, so a round can be reused without the policy running away 
 entropy bonus keeps it exploring.
 
 Only the world model's imagined observations, rewards and terminations decide what is learnt, so
-nothing here knows the game's rules, its roles or a way to play it: the world model, having read
-the manual, is the only source of what is good.
+nothing here knows the game's roles or a way to play it: the world model, having read the manual,
+is the only source of what is good. The rules it imagines under (decoding constraints) say only
+what no game can do, not which entity is which.
 """
 
 from __future__ import annotations
